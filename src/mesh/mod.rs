@@ -1,0 +1,190 @@
+//! Mesh input: every supported format becomes one [`Mesh`] in world space.
+//!
+//! Inference sees all primitives merged; export needs to write weights back into the
+//! primitives they came from, so each merged range remembers its source in a [`Part`].
+
+mod error;
+pub mod gltf;
+mod normalize;
+mod obj;
+mod sample;
+pub mod scene;
+
+pub use error::MeshError;
+pub use normalize::Normalization;
+pub use sample::{sample_surface, SurfaceSamples};
+
+use glam::{Mat4, Vec3};
+
+/// Caps that bound the work and memory any single upload can cost.
+#[derive(Clone, Debug)]
+pub struct Limits {
+    pub max_bytes: u64,
+    pub max_vertices: u64,
+    pub max_triangles: u64,
+    pub max_nodes: usize,
+}
+
+impl Default for Limits {
+    fn default() -> Self {
+        Limits {
+            max_bytes: 256 << 20,
+            max_vertices: 2_000_000,
+            max_triangles: 2_000_000,
+            max_nodes: 100_000,
+        }
+    }
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Format {
+    Glb,
+    Gltf,
+    Vrm,
+    Obj,
+}
+
+/// Where a range of merged vertices came from.
+#[derive(Clone, Debug)]
+pub struct Part {
+    /// The glTF node instancing the mesh (None for OBJ).
+    pub node: Option<usize>,
+    /// glTF mesh index, or OBJ object/group index.
+    pub mesh: usize,
+    pub primitive: usize,
+    pub name: Option<String>,
+    pub first_vertex: u32,
+    pub vertex_count: u32,
+    pub first_triangle: u32,
+    pub triangle_count: u32,
+    /// Takes the primitive's stored positions to [`Mesh::positions`]. Identity for
+    /// skinned primitives, whose node transform glTF says to ignore.
+    pub to_world: Mat4,
+    /// The source skin, when the primitive was skinned in the input.
+    pub skin: Option<usize>,
+}
+
+#[derive(Clone, Debug, Default)]
+pub struct Mesh {
+    pub positions: Vec<Vec3>,
+    pub normals: Vec<Vec3>,
+    pub triangles: Vec<[u32; 3]>,
+    pub parts: Vec<Part>,
+}
+
+/// A loaded upload: the merged mesh and, for glTF inputs, the document to export into.
+#[derive(Debug)]
+pub struct Asset {
+    pub format: Format,
+    pub mesh: Mesh,
+    pub document: Option<gltf::Document>,
+}
+
+/// Guesses the format from the first bytes (and the file name, for OBJ vs. JSON).
+pub fn sniff(bytes: &[u8]) -> Option<Format> {
+    if gltf::is_glb(bytes) {
+        return Some(Format::Glb);
+    }
+    let head = &bytes[..bytes.len().min(4096)];
+    let text = std::str::from_utf8(head).ok().or_else(|| {
+        // A 4 KiB window can cut a UTF-8 sequence; accept the valid prefix.
+        std::str::from_utf8(&head[..head.len().saturating_sub(3)]).ok()
+    })?;
+    let t = text.trim_start_matches('\u{feff}').trim_start();
+    if t.starts_with('{') {
+        return Some(Format::Gltf);
+    }
+    let obj_like = t.lines().any(|l| {
+        let l = l.trim_start();
+        l.starts_with("v ") || l.starts_with("f ") || l.starts_with("o ") || l.starts_with("vn ")
+    });
+    let all_text = t
+        .lines()
+        .all(|l| l.is_empty() || l.starts_with('#') || !l.contains('\0'));
+    (obj_like && all_text).then_some(Format::Obj)
+}
+
+/// Loads any supported format. Never panics; every failure is a [`MeshError`].
+pub fn load(bytes: &[u8], limits: &Limits) -> Result<Asset, MeshError> {
+    if bytes.is_empty() {
+        return Err(MeshError::Empty);
+    }
+    if bytes.len() as u64 > limits.max_bytes {
+        return Err(MeshError::TooLarge {
+            size: bytes.len() as u64,
+            cap: limits.max_bytes,
+        });
+    }
+    let format = sniff(bytes).ok_or(MeshError::UnknownFormat)?;
+    let (format, mesh, document) = match format {
+        Format::Obj => (Format::Obj, obj::load(bytes, limits)?, None),
+        Format::Glb | Format::Gltf | Format::Vrm => {
+            let doc = if format == Format::Glb {
+                gltf::parse_glb(bytes, limits)?
+            } else {
+                gltf::parse_document(bytes, None, limits)?
+            };
+            let is_vrm = doc
+                .root
+                .extensions_used
+                .iter()
+                .any(|e| e == "VRM" || e == "VRMC_vrm");
+            let mesh = scene::build(&doc, limits)?;
+            let format = if is_vrm { Format::Vrm } else { format };
+            (format, mesh, Some(doc))
+        }
+    };
+    validate_geometry(&mesh)?;
+    Ok(Asset {
+        format,
+        mesh,
+        document,
+    })
+}
+
+fn validate_geometry(mesh: &Mesh) -> Result<(), MeshError> {
+    if mesh.triangles.is_empty() {
+        return Err(MeshError::EmptyScene);
+    }
+    if mesh.positions.iter().any(|p| !p.is_finite()) {
+        return Err(MeshError::NonFinite);
+    }
+    let area: f64 = mesh
+        .triangles
+        .iter()
+        .map(|t| triangle_area(mesh, t) as f64)
+        .sum();
+    let scale = Normalization::from_points(&mesh.positions).half_extent as f64;
+    // Relative to the mesh's size so tiny-but-real models (millimetre units) still pass.
+    if !(area > 1e-12 * scale * scale) {
+        return Err(MeshError::Degenerate);
+    }
+    Ok(())
+}
+
+pub(crate) fn triangle_area(mesh: &Mesh, t: &[u32; 3]) -> f32 {
+    let [a, b, c] = t.map(|i| mesh.positions[i as usize]);
+    (b - a).cross(c - a).length() * 0.5
+}
+
+impl Mesh {
+    /// Area-weighted vertex normals, for inputs that lack them.
+    pub fn compute_normals(&mut self) {
+        let mut n = vec![Vec3::ZERO; self.positions.len()];
+        for t in &self.triangles {
+            let [a, b, c] = t.map(|i| self.positions[i as usize]);
+            let f = (b - a).cross(c - a);
+            for &i in t {
+                n[i as usize] += f;
+            }
+        }
+        self.normals = n.into_iter().map(|v| v.normalize_or_zero()).collect();
+    }
+
+    pub fn bounds(&self) -> (Vec3, Vec3) {
+        self.positions.iter().fold(
+            (Vec3::splat(f32::MAX), Vec3::splat(f32::MIN)),
+            |(lo, hi), &p| (lo.min(p), hi.max(p)),
+        )
+    }
+}

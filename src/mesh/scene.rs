@@ -1,0 +1,412 @@
+//! Walks a glTF scene and merges its triangle primitives into one world-space mesh.
+
+use super::gltf::{Document, Node};
+use super::{Limits, Mesh, MeshError, Part};
+use glam::{Mat4, Quat, Vec3};
+
+const TRIANGLES: u32 = 4;
+const TRIANGLE_STRIP: u32 = 5;
+const TRIANGLE_FAN: u32 = 6;
+
+pub fn local_matrix(node: &Node) -> Result<Mat4, MeshError> {
+    let m = if let Some(m) = node.matrix {
+        Mat4::from_cols_array(&m)
+    } else {
+        let t = Vec3::from(node.translation.unwrap_or([0.0; 3]));
+        let r = node
+            .rotation
+            .map(Quat::from_array)
+            .unwrap_or(Quat::IDENTITY);
+        let s = Vec3::from(node.scale.unwrap_or([1.0; 3]));
+        // Exporters write quaternions that are only nearly unit; renormalise (a zero
+        // quaternion is invalid glTF, and would otherwise collapse the subtree).
+        let r = if r.length_squared() > 1e-12 {
+            r.normalize()
+        } else {
+            Quat::IDENTITY
+        };
+        Mat4::from_scale_rotation_translation(s, r, t)
+    };
+    if !m.is_finite() {
+        return Err(MeshError::NonFinite);
+    }
+    Ok(m)
+}
+
+/// World matrices of every node reachable from the scene roots, plus the parent of each
+/// node. Fails on cycles and on nodes with two parents, which glTF forbids and which
+/// would otherwise make traversal loop or duplicate geometry without bound.
+pub fn world_matrices(
+    doc: &Document,
+    limits: &Limits,
+) -> Result<(Vec<Option<Mat4>>, Vec<Option<usize>>), MeshError> {
+    let nodes = &doc.root.nodes;
+    if nodes.len() > limits.max_nodes {
+        return Err(MeshError::Invalid(format!(
+            "{} nodes, over the cap of {}",
+            nodes.len(),
+            limits.max_nodes
+        )));
+    }
+    let mut parent = vec![None; nodes.len()];
+    for (i, n) in nodes.iter().enumerate() {
+        for &c in &n.children {
+            if c >= nodes.len() {
+                return Err(MeshError::IndexOutOfRange {
+                    what: "node",
+                    index: c as u64,
+                });
+            }
+            if c == i || parent[c].is_some() {
+                return Err(MeshError::BadHierarchy(format!(
+                    "node {c} has more than one parent"
+                )));
+            }
+            parent[c] = Some(i);
+        }
+    }
+    let roots = scene_roots(doc)?;
+    let mut world: Vec<Option<Mat4>> = vec![None; nodes.len()];
+    let mut stack: Vec<(usize, Mat4)> = Vec::new();
+    for &r in &roots {
+        if parent[r].is_some() {
+            return Err(MeshError::BadHierarchy(format!(
+                "scene root {r} has a parent"
+            )));
+        }
+        stack.push((r, Mat4::IDENTITY));
+    }
+    while let Some((i, parent_m)) = stack.pop() {
+        if world[i].is_some() {
+            return Err(MeshError::BadHierarchy(format!(
+                "node {i} is reached twice"
+            )));
+        }
+        let m = parent_m * local_matrix(&nodes[i])?;
+        world[i] = Some(m);
+        stack.extend(nodes[i].children.iter().map(|&c| (c, m)));
+    }
+    // Nodes on a cycle have a parent yet are unreachable from any root: with one
+    // parent each, a cycle is the only way for that to happen outside the scene.
+    let mut on_cycle = vec![false; nodes.len()];
+    for start in 0..nodes.len() {
+        let mut i = start;
+        let mut steps = 0;
+        while let Some(p) = parent[i] {
+            i = p;
+            steps += 1;
+            if steps > nodes.len() {
+                on_cycle[start] = true;
+                break;
+            }
+        }
+    }
+    if let Some(i) = on_cycle.iter().position(|&c| c) {
+        return Err(MeshError::BadHierarchy(format!("node {i} is on a cycle")));
+    }
+    Ok((world, parent))
+}
+
+fn scene_roots(doc: &Document) -> Result<Vec<usize>, MeshError> {
+    let root = &doc.root;
+    if root.scenes.is_empty() {
+        // No scene: show every parentless node, as most viewers do.
+        let mut has_parent = vec![false; root.nodes.len()];
+        root.nodes.iter().flat_map(|n| &n.children).for_each(|&c| {
+            if let Some(h) = has_parent.get_mut(c) {
+                *h = true;
+            }
+        });
+        return Ok((0..root.nodes.len()).filter(|&i| !has_parent[i]).collect());
+    }
+    let s = root.scene.unwrap_or(0);
+    let scene = root.scenes.get(s).ok_or(MeshError::IndexOutOfRange {
+        what: "scene",
+        index: s as u64,
+    })?;
+    for &n in &scene.nodes {
+        if n >= root.nodes.len() {
+            return Err(MeshError::IndexOutOfRange {
+                what: "node",
+                index: n as u64,
+            });
+        }
+    }
+    Ok(scene.nodes.clone())
+}
+
+pub fn build(doc: &Document, limits: &Limits) -> Result<Mesh, MeshError> {
+    let (world, parent) = world_matrices(doc, limits)?;
+    let mut skin_frames: Vec<Option<Mat4>> = vec![None; doc.root.skins.len()];
+    let mut mesh = Mesh::default();
+    let mut skipped_modes = Vec::new();
+    let mut any_normals_missing = false;
+    for (node_index, node) in doc.root.nodes.iter().enumerate() {
+        let (Some(mesh_index), Some(node_world)) = (node.mesh, world[node_index]) else {
+            continue;
+        };
+        let def = doc
+            .root
+            .meshes
+            .get(mesh_index)
+            .ok_or(MeshError::IndexOutOfRange {
+                what: "mesh",
+                index: mesh_index as u64,
+            })?;
+        if let Some(s) = node.skin {
+            if s >= doc.root.skins.len() {
+                return Err(MeshError::IndexOutOfRange {
+                    what: "skin",
+                    index: s as u64,
+                });
+            }
+        }
+        for (pi, prim) in def.primitives.iter().enumerate() {
+            let mode = prim.mode.unwrap_or(TRIANGLES);
+            if !matches!(mode, TRIANGLES | TRIANGLE_STRIP | TRIANGLE_FAN) {
+                if mode > 6 {
+                    return Err(MeshError::Invalid(format!("primitive mode {mode}")));
+                }
+                skipped_modes.push(mode);
+                continue;
+            }
+            let skinned = node.skin.is_some() && prim.attributes.contains_key("JOINTS_0");
+            let to_world = match node.skin {
+                Some(si) if skinned => match skin_frames[si] {
+                    Some(m) => m,
+                    None => {
+                        let m = skin_to_world(doc, si, &world, &parent)?;
+                        skin_frames[si] = Some(m);
+                        m
+                    }
+                },
+                _ => node_world,
+            };
+            let added = add_primitive(doc, limits, &mut mesh, prim, mode, to_world)?;
+            any_normals_missing |= !added.2;
+            mesh.parts.push(Part {
+                node: Some(node_index),
+                mesh: mesh_index,
+                primitive: pi,
+                name: def.name.clone().or_else(|| node.name.clone()),
+                first_vertex: added.0 .0,
+                vertex_count: added.0 .1,
+                first_triangle: added.1 .0,
+                triangle_count: added.1 .1,
+                to_world,
+                skin: if skinned { node.skin } else { None },
+            });
+        }
+    }
+    if mesh.parts.is_empty() {
+        return Err(if skipped_modes.is_empty() {
+            MeshError::EmptyScene
+        } else {
+            MeshError::NoTriangles(skipped_modes)
+        });
+    }
+    if any_normals_missing {
+        // Recompute for all: mixing given and computed normals is harmless, but computing
+        // them per primitive would need a second pass anyway.
+        let given = std::mem::take(&mut mesh.normals);
+        mesh.compute_normals();
+        for (n, g) in mesh.normals.iter_mut().zip(given) {
+            if g != Vec3::ZERO {
+                *n = g;
+            }
+        }
+    }
+    Ok(mesh)
+}
+
+/// The inverse bind matrices of a skin (identity when the file omits them).
+pub fn inverse_bind_matrices(doc: &Document, skin: usize) -> Result<Vec<Mat4>, MeshError> {
+    let s = doc.root.skins.get(skin).ok_or(MeshError::IndexOutOfRange {
+        what: "skin",
+        index: skin as u64,
+    })?;
+    if s.joints.len() as u64 > MAX_JOINTS {
+        return Err(MeshError::Invalid(format!(
+            "skin {skin} has {} joints",
+            s.joints.len()
+        )));
+    }
+    let Some(acc) = s.inverse_bind_matrices else {
+        return Ok(vec![Mat4::IDENTITY; s.joints.len()]);
+    };
+    let (v, comps) = doc.read_accessor(acc, MAX_JOINTS)?;
+    if comps != 16 || v.len() / 16 < s.joints.len() {
+        return Err(MeshError::Invalid(format!(
+            "skin {skin}: inverseBindMatrices do not match its joints"
+        )));
+    }
+    let m: Vec<Mat4> = v
+        .chunks_exact(16)
+        .map(|c| Mat4::from_cols_array(&std::array::from_fn(|i| c[i] as f32)))
+        .collect();
+    if m.iter().any(|m| !m.is_finite()) {
+        return Err(MeshError::NonFinite);
+    }
+    Ok(m)
+}
+
+/// Most joints one skin may declare: far above any real rig, low enough to bound work.
+pub const MAX_JOINTS: u64 = 4096;
+
+/// Where a skin's bind space sits in the scene. glTF draws a skinned vertex at
+/// `Σ w · jointWorld · inverseBind · v`; exporters differ in which frame they bind in
+/// (several skins of one file can disagree), so the bind space is mapped to the scene
+/// through the skin's root joint, which stays at rest even in files saved mid-pose.
+fn skin_to_world(
+    doc: &Document,
+    skin: usize,
+    world: &[Option<Mat4>],
+    parent: &[Option<usize>],
+) -> Result<Mat4, MeshError> {
+    let ibms = inverse_bind_matrices(doc, skin)?;
+    let joints = &doc.root.skins[skin].joints;
+    if let Some(&j) = joints.iter().find(|&&j| j >= world.len()) {
+        return Err(MeshError::IndexOutOfRange {
+            what: "joint node",
+            index: j as u64,
+        });
+    }
+    let is_joint: std::collections::HashSet<usize> = joints.iter().copied().collect();
+    let is_root = |j: usize| {
+        let mut cur = parent[j];
+        while let Some(p) = cur {
+            if is_joint.contains(&p) {
+                return false;
+            }
+            cur = parent[p];
+        }
+        true
+    };
+    let root = joints.iter().position(|&j| is_root(j));
+    let m = root.and_then(|k| world[joints[k]].map(|w| w * ibms[k]));
+    Ok(match m {
+        Some(m) if m.is_finite() && m.determinant().abs() > 1e-20 => m,
+        _ => Mat4::IDENTITY,
+    })
+}
+
+type Range = (u32, u32);
+
+/// Appends one primitive; returns its vertex range, triangle range, and whether it had normals.
+fn add_primitive(
+    doc: &Document,
+    limits: &Limits,
+    mesh: &mut Mesh,
+    prim: &super::gltf::Primitive,
+    mode: u32,
+    to_world: Mat4,
+) -> Result<(Range, Range, bool), MeshError> {
+    let pos_acc = *prim
+        .attributes
+        .get("POSITION")
+        .ok_or_else(|| MeshError::Invalid("a primitive has no POSITION".into()))?;
+    let remaining_v = limits
+        .max_vertices
+        .saturating_sub(mesh.positions.len() as u64);
+    let count = doc.accessor_count(pos_acc)?;
+    if count > remaining_v {
+        return Err(MeshError::TooManyVertices {
+            count: mesh.positions.len() as u64 + count,
+            cap: limits.max_vertices,
+        });
+    }
+    let (pos, comps) = doc.read_accessor(pos_acc, remaining_v)?;
+    if comps != 3 {
+        return Err(MeshError::Invalid("POSITION is not VEC3".into()));
+    }
+    let n = pos.len() / 3;
+    let first = mesh.positions.len() as u32;
+    for p in pos.chunks_exact(3) {
+        let v = to_world.transform_point3(Vec3::new(p[0] as f32, p[1] as f32, p[2] as f32));
+        if !v.is_finite() {
+            return Err(MeshError::NonFinite);
+        }
+        mesh.positions.push(v);
+    }
+    let normal_m = to_world.inverse().transpose();
+    let has_normals = match prim.attributes.get("NORMAL") {
+        Some(&acc) if doc.accessor_count(acc)? == n as u64 => {
+            let (nrm, c) = doc.read_accessor(acc, n as u64)?;
+            if c != 3 {
+                return Err(MeshError::Invalid("NORMAL is not VEC3".into()));
+            }
+            for v in nrm.chunks_exact(3) {
+                let v =
+                    normal_m.transform_vector3(Vec3::new(v[0] as f32, v[1] as f32, v[2] as f32));
+                mesh.normals.push(if v.is_finite() {
+                    v.normalize_or_zero()
+                } else {
+                    Vec3::ZERO
+                });
+            }
+            true
+        }
+        _ => {
+            mesh.normals.extend(std::iter::repeat(Vec3::ZERO).take(n));
+            false
+        }
+    };
+    let remaining_t = limits
+        .max_triangles
+        .saturating_sub(mesh.triangles.len() as u64);
+    let index_cap = remaining_t.saturating_mul(3).saturating_add(2);
+    let idx: Vec<u32> = match prim.indices {
+        Some(acc) => {
+            let c = doc.accessor_count(acc)?;
+            if c > index_cap {
+                return Err(MeshError::TooManyTriangles {
+                    count: mesh.triangles.len() as u64 + c / 3,
+                    cap: limits.max_triangles,
+                });
+            }
+            let (v, comps) = doc.read_indices(acc, index_cap)?;
+            if comps != 1 {
+                return Err(MeshError::Invalid("indices are not SCALAR".into()));
+            }
+            v
+        }
+        None => (0..n as u32).collect(),
+    };
+    if let Some(&bad) = idx.iter().find(|&&i| i as usize >= n) {
+        return Err(MeshError::IndexOutOfRange {
+            what: "vertex index",
+            index: bad as u64,
+        });
+    }
+    let first_tri = mesh.triangles.len() as u32;
+    let tris = assemble_triangles(&idx, mode);
+    if tris.len() as u64 > remaining_t {
+        return Err(MeshError::TooManyTriangles {
+            count: mesh.triangles.len() as u64 + tris.len() as u64,
+            cap: limits.max_triangles,
+        });
+    }
+    mesh.triangles
+        .extend(tris.into_iter().map(|t| t.map(|i| i + first)));
+    let tri_count = mesh.triangles.len() as u32 - first_tri;
+    Ok(((first, n as u32), (first_tri, tri_count), has_normals))
+}
+
+/// Expands strips and fans into a triangle list (winding kept consistent for strips).
+fn assemble_triangles(idx: &[u32], mode: u32) -> Vec<[u32; 3]> {
+    match mode {
+        TRIANGLE_STRIP => (2..idx.len())
+            .map(|i| {
+                if i % 2 == 0 {
+                    [idx[i - 2], idx[i - 1], idx[i]]
+                } else {
+                    [idx[i - 1], idx[i - 2], idx[i]]
+                }
+            })
+            .collect(),
+        TRIANGLE_FAN => (2..idx.len())
+            .map(|i| [idx[0], idx[i - 1], idx[i]])
+            .collect(),
+        _ => idx.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect(),
+    }
+}

@@ -1,0 +1,9 @@
+//! Skeletons, their tokenization, and how rigs are measured.
+pub mod grammar;
+pub mod groundtruth;
+pub mod metrics;
+pub mod skeleton;
+pub mod template;
+pub mod tokenizer;
+
+pub use skeleton::{Bone, Skeleton, SkinWeights, Template};
