@@ -222,8 +222,9 @@ pub fn parse_document(
     if !json.is_object() {
         return Err(MeshError::Json("the top level is not an object".into()));
     }
-    let root: Root =
-        serde_json::from_value(json.clone()).map_err(|e| MeshError::Invalid(e.to_string()))?;
+    // Deserialised from a borrow: a clone of the tree would double the peak memory
+    // of a JSON-heavy upload.
+    let root = Root::deserialize(&json).map_err(|e| MeshError::Invalid(e.to_string()))?;
     if !root.asset.version.starts_with("2.") {
         return Err(MeshError::UnsupportedVersion(root.asset.version.clone()));
     }
@@ -401,6 +402,17 @@ impl Document {
         Ok((&buf[v.byte_offset as usize..end as usize], v.byte_stride))
     }
 
+    /// glTF allows an accessor with no data (all zeros). For positions and indices that
+    /// can only be useless, and it would let a tiny file claim a huge zeroed array.
+    pub fn require_data(&self, index: usize) -> Result<(), MeshError> {
+        match self.root.accessors.get(index) {
+            Some(a) if a.buffer_view.is_none() && a.sparse.is_none() && a.count > 0 => {
+                Err(MeshError::Invalid(format!("accessor {index} has no bufferView and no sparse values")))
+            }
+            _ => Ok(()),
+        }
+    }
+
     /// Number of elements an accessor holds, checked against `cap` before any allocation.
     pub fn accessor_count(&self, index: usize) -> Result<u64, MeshError> {
         self.root
@@ -535,6 +547,12 @@ impl Document {
             return Err(MeshError::Invalid(format!(
                 "accessor {index} must hold unsigned integers, has componentType {}",
                 a.component_type
+            )));
+        }
+        // Normalized integers read as fractions, which truncate to index 0 or 1.
+        if a.normalized {
+            return Err(MeshError::Invalid(format!(
+                "accessor {index} holds indices but is normalized"
             )));
         }
         let (vals, comps) = self.read_accessor(index, cap)?;

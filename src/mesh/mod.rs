@@ -7,7 +7,7 @@ mod error;
 pub mod gltf;
 mod normalize;
 mod obj;
-mod sample;
+pub mod sample;
 pub mod scene;
 
 pub use error::MeshError;

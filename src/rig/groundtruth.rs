@@ -77,21 +77,34 @@ pub fn extract(asset: &Asset) -> Result<Option<GroundTruth>, MeshError> {
             }
         }
     }
-    // A joint's parent bone is its nearest ancestor node that is also a joint.
-    let joint_parent = |j: usize| -> Option<usize> {
+    // A joint's parent bone is its nearest ancestor node that is also a joint. Memoised
+    // per node, so deep hierarchies cost one visit per node rather than one per
+    // (joint, ancestor) pair.
+    let mut nearest_joint: Vec<Option<Option<usize>>> = vec![None; nodes.len()];
+    let mut joint_parent = |j: usize| -> Option<usize> {
+        let mut path = Vec::new();
         let mut cur = node_parent[j];
-        let mut steps = 0;
-        while let Some(p) = cur {
-            if bind.contains_key(&p) {
-                return Some(p);
+        let found = loop {
+            match cur {
+                None => break None,
+                Some(p) if bind.contains_key(&p) => break Some(p),
+                Some(p) => {
+                    if let Some(known) = nearest_joint[p] {
+                        break known;
+                    }
+                    // The loader refused cycles; this bound only guards a hand-built asset.
+                    if path.len() > nodes.len() {
+                        break None;
+                    }
+                    path.push(p);
+                    cur = node_parent[p];
+                }
             }
-            steps += 1;
-            if steps > nodes.len() {
-                return None;
-            }
-            cur = node_parent[p];
+        };
+        for p in path {
+            nearest_joint[p] = Some(found);
         }
-        None
+        found
     };
     let parents: HashMap<usize, Option<usize>> =
         order.iter().map(|&j| (j, joint_parent(j))).collect();

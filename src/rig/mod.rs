@@ -2,6 +2,7 @@
 pub mod grammar;
 pub mod groundtruth;
 pub mod metrics;
+pub mod nearest;
 pub mod skeleton;
 pub mod template;
 pub mod tokenizer;

@@ -1,0 +1,116 @@
+//! Subcommands. Each one is a thin shell over the library, so tests drive the same code.
+
+mod dataset;
+mod eval;
+mod inspect;
+
+use clap::{Parser, Subcommand};
+use rigserve::mesh::Limits;
+use std::path::PathBuf;
+
+#[derive(Parser, Debug)]
+#[command(name = "rigserve", version, about = "Auto-rigging for 3D meshes: skeletons, skin weights, rigged GLB")]
+pub struct Cli {
+    #[command(subcommand)]
+    pub command: Command,
+}
+
+#[derive(clap::Args, Debug, Clone)]
+pub struct LimitArgs {
+    /// Largest upload accepted, in bytes.
+    #[arg(long, env = "RIGSERVE_MAX_BYTES", default_value_t = 256 << 20)]
+    pub max_bytes: u64,
+    /// Most vertices a mesh may have.
+    #[arg(long, env = "RIGSERVE_MAX_VERTICES", default_value_t = 2_000_000)]
+    pub max_vertices: u64,
+    /// Most triangles a mesh may have.
+    #[arg(long, env = "RIGSERVE_MAX_TRIANGLES", default_value_t = 2_000_000)]
+    pub max_triangles: u64,
+}
+
+impl LimitArgs {
+    pub fn limits(&self) -> Limits {
+        Limits {
+            max_bytes: self.max_bytes,
+            max_vertices: self.max_vertices,
+            max_triangles: self.max_triangles,
+            ..Limits::default()
+        }
+    }
+}
+
+#[derive(Subcommand, Debug)]
+pub enum Command {
+    /// Prints the bone tree (and mesh statistics) of a rigged file.
+    Inspect {
+        file: PathBuf,
+        /// Print the bone tree as JSON (the same document the service returns).
+        #[arg(long)]
+        json: bool,
+        #[command(flatten)]
+        limits: LimitArgs,
+    },
+    /// Scores rigs against a data set's artist rigs and writes a JSON report.
+    Eval {
+        /// Folder holding `manifest.tsv` (columns `file`, `category`, optional `split`).
+        #[arg(long)]
+        dataset: PathBuf,
+        /// Only the rows of this split (e.g. `dev`).
+        #[arg(long)]
+        split: Option<String>,
+        /// Folder of rigged GLBs named like the data set's files, to score.
+        #[arg(long)]
+        pred: Option<PathBuf>,
+        /// Where to write the report.
+        #[arg(long)]
+        out: PathBuf,
+        #[command(flatten)]
+        limits: LimitArgs,
+    },
+    /// Writes training arrays and token sequences from rigged meshes (see `training/`).
+    Dataset(DatasetArgs),
+}
+
+#[derive(clap::Args, Debug)]
+pub struct DatasetArgs {
+    /// Folder holding `manifest.tsv` and the rigged files it lists.
+    #[arg(long)]
+    pub input: PathBuf,
+    /// Only the rows of this split (e.g. `train`).
+    #[arg(long)]
+    pub split: Option<String>,
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Surface samples per item.
+    #[arg(long, default_value_t = 4096)]
+    pub points: usize,
+    /// Augmented variations per file, besides the original.
+    #[arg(long, default_value_t = 0)]
+    pub augment: usize,
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    /// Files whose skeletons have more bones are skipped.
+    #[arg(long, default_value_t = 128)]
+    pub max_bones: usize,
+    #[command(flatten)]
+    pub limits: LimitArgs,
+}
+
+pub fn run(cli: Cli) -> anyhow::Result<()> {
+    match cli.command {
+        Command::Inspect { file, json, limits } => inspect::run(&file, json, &limits.limits()),
+        Command::Dataset(a) => {
+            let cfg = rigserve::dataset::DatasetConfig {
+                points: a.points,
+                augment: a.augment,
+                seed: a.seed,
+                max_bones: a.max_bones,
+                augment_config: Default::default(),
+            };
+            dataset::run(&a.input, a.split.as_deref(), &a.out, cfg, &a.limits.limits())
+        }
+        Command::Eval { dataset, split, pred, out, limits } => {
+            eval::run(&dataset, split.as_deref(), pred.as_deref(), &out, &limits.limits())
+        }
+    }
+}

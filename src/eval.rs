@@ -1,0 +1,210 @@
+//! Scores rigged files against a data set's artist rigs: the figures every model change
+//! is judged by, computed by the same code whichever tool produced the rig.
+
+use crate::mesh::{self, Limits};
+use crate::rig::groundtruth::{self, GroundTruth};
+use crate::rig::metrics::{score_skeleton, score_skin, Frame, SkeletonScores, SkinScores};
+use crate::rig::nearest::PointGrid;
+use crate::rig::SkinWeights;
+use serde::Serialize;
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+/// Seed for the deformation poses, fixed so reports are comparable run to run.
+const POSE_SEED: u64 = 0x5EED;
+
+#[derive(Debug, thiserror::Error)]
+pub enum EvalError {
+    #[error("cannot read {0}: {1}")]
+    Io(PathBuf, std::io::Error),
+    #[error("manifest {0}: {1}")]
+    Manifest(PathBuf, String),
+}
+
+#[derive(Clone, Debug)]
+pub struct ManifestEntry {
+    pub file: String,
+    pub category: String,
+    pub split: Option<String>,
+}
+
+/// Reads `manifest.tsv`: tab-separated with a header naming `file` and `category`
+/// (`split` optional).
+pub fn read_manifest(dataset: &Path) -> Result<Vec<ManifestEntry>, EvalError> {
+    let path = dataset.join("manifest.tsv");
+    let text = std::fs::read_to_string(&path).map_err(|e| EvalError::Io(path.clone(), e))?;
+    let mut lines = text.lines();
+    let header: Vec<&str> = lines.next().unwrap_or("").split('\t').collect();
+    let col = |name: &str| header.iter().position(|h| h.trim() == name);
+    let (Some(f), Some(c)) = (col("file"), col("category")) else {
+        return Err(EvalError::Manifest(path, "needs `file` and `category` columns".into()));
+    };
+    let s = col("split");
+    Ok(lines
+        .filter(|l| !l.trim().is_empty())
+        .filter_map(|l| {
+            let v: Vec<&str> = l.split('\t').collect();
+            Some(ManifestEntry {
+                file: v.get(f)?.trim().to_string(),
+                category: v.get(c)?.trim().to_string(),
+                split: s.and_then(|s| v.get(s)).map(|x| x.trim().to_string()),
+            })
+        })
+        .collect())
+}
+
+#[derive(Clone, Debug, Serialize)]
+pub struct ErrorInfo {
+    pub code: String,
+    pub message: String,
+}
+
+#[derive(Clone, Debug, Serialize)]
+pub struct ModelReport {
+    pub file: String,
+    pub category: String,
+    pub valid: bool,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub error: Option<ErrorInfo>,
+    pub joints_gt: usize,
+    pub joints_pred: usize,
+    pub skeleton: Option<SkeletonScores>,
+    pub skin: Option<SkinScores>,
+}
+
+#[derive(Clone, Debug, Serialize)]
+pub struct GroupReport {
+    pub count: usize,
+    pub valid: usize,
+    pub valid_fraction: f32,
+    pub skeleton: SkeletonScores,
+    pub skin: SkinScores,
+}
+
+#[derive(Clone, Debug, Serialize)]
+pub struct Report {
+    pub dataset: String,
+    pub split: Option<String>,
+    pub mode: String,
+    pub overall: GroupReport,
+    pub per_category: BTreeMap<String, GroupReport>,
+    pub models: Vec<ModelReport>,
+}
+
+fn err(code: &str, message: impl ToString) -> ErrorInfo {
+    ErrorInfo { code: code.into(), message: message.to_string() }
+}
+
+/// Loads a rigged file and its ground truth.
+pub fn load_rig(path: &Path, limits: &Limits) -> Result<(mesh::Mesh, GroundTruth), ErrorInfo> {
+    let bytes = std::fs::read(path).map_err(|e| err("missing", format!("{}: {e}", path.display())))?;
+    let asset = mesh::load(&bytes, limits).map_err(|e| err(e.code(), e))?;
+    let gt = groundtruth::extract(&asset)
+        .map_err(|e| err(e.code(), e))?
+        .ok_or_else(|| err("no_skin", "the file has no skinned mesh"))?;
+    Ok((asset.mesh, gt))
+}
+
+/// Carries predicted weights onto the ground truth's vertices. Rigs exported by
+/// rigserve keep vertex order; other tools may weld or split, so then each vertex takes
+/// the weights of the nearest predicted vertex.
+fn transfer_weights(gt_pos: &[glam::Vec3], pred_pos: &[glam::Vec3], pred: &SkinWeights, frame: &Frame) -> SkinWeights {
+    let same = gt_pos.len() == pred_pos.len()
+        && gt_pos.iter().zip(pred_pos).all(|(a, b)| frame.report(a.distance(*b)) < 1e-5);
+    if same {
+        return pred.clone();
+    }
+    let grid = PointGrid::new(pred_pos);
+    SkinWeights {
+        per_vertex: gt_pos
+            .iter()
+            .map(|&p| grid.nearest(p).map(|(i, _)| pred.per_vertex[i].clone()).unwrap_or_default())
+            .collect(),
+    }
+}
+
+/// Scores one predicted rig file against one ground-truth file.
+pub fn score_pair(gt_path: &Path, pred_path: &Path, limits: &Limits) -> Result<ModelReport, ErrorInfo> {
+    let (gt_mesh, gt) = load_rig(gt_path, limits).map_err(|e| err("ground_truth_unreadable", format!("{}: {}", e.code, e.message)))?;
+    let mut report = ModelReport {
+        file: String::new(),
+        category: String::new(),
+        valid: false,
+        error: None,
+        joints_gt: gt.skeleton.len(),
+        joints_pred: 0,
+        skeleton: None,
+        skin: None,
+    };
+    let (pred_mesh, pred) = match load_rig(pred_path, limits) {
+        Ok(x) => x,
+        Err(e) => {
+            report.error = Some(e);
+            return Ok(report);
+        }
+    };
+    let frame = Frame::from_points(&gt_mesh.positions);
+    report.joints_pred = pred.skeleton.len();
+    report.skeleton = Some(score_skeleton(&pred.skeleton, &gt.skeleton, &frame));
+    let weights = transfer_weights(&gt_mesh.positions, &pred_mesh.positions, &pred.weights, &frame);
+    match score_skin(&pred.skeleton, &weights, &gt.skeleton, &gt.weights, &gt_mesh.positions, &frame, POSE_SEED) {
+        Ok(s) => report.skin = Some(s),
+        Err(e) => report.error = Some(err(e.code(), e)),
+    }
+    report.valid = report.error.is_none() && pred.skeleton.validate(usize::MAX).is_ok();
+    Ok(report)
+}
+
+fn group(models: &[&ModelReport]) -> GroupReport {
+    let valid = models.iter().filter(|m| m.valid).count();
+    GroupReport {
+        count: models.len(),
+        valid,
+        valid_fraction: if models.is_empty() { f32::NAN } else { valid as f32 / models.len() as f32 },
+        skeleton: SkeletonScores::mean(models.iter().filter_map(|m| m.skeleton.as_ref())),
+        skin: SkinScores::mean(models.iter().filter_map(|m| m.skin.as_ref())),
+    }
+}
+
+/// Builds the report from per-model results (shared by every eval mode).
+pub fn summarize(dataset: &Path, split: Option<&str>, mode: &str, models: Vec<ModelReport>) -> Report {
+    let mut cats: BTreeMap<String, Vec<&ModelReport>> = BTreeMap::new();
+    for m in &models {
+        cats.entry(m.category.clone()).or_default().push(m);
+    }
+    let per_category = cats.into_iter().map(|(k, v)| (k, group(&v))).collect();
+    Report {
+        dataset: dataset.display().to_string(),
+        split: split.map(str::to_string),
+        mode: mode.to_string(),
+        overall: group(&models.iter().collect::<Vec<_>>()),
+        per_category,
+        models,
+    }
+}
+
+/// `rigserve eval --pred DIR`: scores the rigged files in `pred` (same file names as the
+/// data set) against the data set's own rigs.
+pub fn eval_pred(dataset: &Path, split: Option<&str>, pred: &Path, limits: &Limits) -> Result<Report, EvalError> {
+    let entries = read_manifest(dataset)?;
+    let mut models = Vec::new();
+    for e in entries.iter().filter(|e| split.is_none() || e.split.as_deref() == split) {
+        let mut m = match score_pair(&dataset.join(&e.file), &pred.join(&e.file), limits) {
+            Ok(m) => m,
+            Err(info) => ModelReport {
+                file: String::new(),
+                category: String::new(),
+                valid: false,
+                error: Some(info),
+                joints_gt: 0,
+                joints_pred: 0,
+                skeleton: None,
+                skin: None,
+            },
+        };
+        m.file = e.file.clone();
+        m.category = e.category.clone();
+        models.push(m);
+    }
+    Ok(summarize(dataset, split, "pred", models))
+}

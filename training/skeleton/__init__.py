@@ -1,0 +1,1 @@
+"""Skeleton prediction model (UniRig-style): training, ONNX export and checks."""
