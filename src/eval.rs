@@ -37,7 +37,10 @@ pub fn read_manifest(dataset: &Path) -> Result<Vec<ManifestEntry>, EvalError> {
     let header: Vec<&str> = lines.next().unwrap_or("").split('\t').collect();
     let col = |name: &str| header.iter().position(|h| h.trim() == name);
     let (Some(f), Some(c)) = (col("file"), col("category")) else {
-        return Err(EvalError::Manifest(path, "needs `file` and `category` columns".into()));
+        return Err(EvalError::Manifest(
+            path,
+            "needs `file` and `category` columns".into(),
+        ));
     };
     let s = col("split");
     Ok(lines
@@ -92,12 +95,16 @@ pub struct Report {
 }
 
 fn err(code: &str, message: impl ToString) -> ErrorInfo {
-    ErrorInfo { code: code.into(), message: message.to_string() }
+    ErrorInfo {
+        code: code.into(),
+        message: message.to_string(),
+    }
 }
 
 /// Loads a rigged file and its ground truth.
 pub fn load_rig(path: &Path, limits: &Limits) -> Result<(mesh::Mesh, GroundTruth), ErrorInfo> {
-    let bytes = std::fs::read(path).map_err(|e| err("missing", format!("{}: {e}", path.display())))?;
+    let bytes =
+        std::fs::read(path).map_err(|e| err("missing", format!("{}: {e}", path.display())))?;
     let asset = mesh::load(&bytes, limits).map_err(|e| err(e.code(), e))?;
     let gt = groundtruth::extract(&asset)
         .map_err(|e| err(e.code(), e))?
@@ -108,9 +115,17 @@ pub fn load_rig(path: &Path, limits: &Limits) -> Result<(mesh::Mesh, GroundTruth
 /// Carries predicted weights onto the ground truth's vertices. Rigs exported by
 /// rigserve keep vertex order; other tools may weld or split, so then each vertex takes
 /// the weights of the nearest predicted vertex.
-fn transfer_weights(gt_pos: &[glam::Vec3], pred_pos: &[glam::Vec3], pred: &SkinWeights, frame: &Frame) -> SkinWeights {
+fn transfer_weights(
+    gt_pos: &[glam::Vec3],
+    pred_pos: &[glam::Vec3],
+    pred: &SkinWeights,
+    frame: &Frame,
+) -> SkinWeights {
     let same = gt_pos.len() == pred_pos.len()
-        && gt_pos.iter().zip(pred_pos).all(|(a, b)| frame.report(a.distance(*b)) < 1e-5);
+        && gt_pos
+            .iter()
+            .zip(pred_pos)
+            .all(|(a, b)| frame.report(a.distance(*b)) < 1e-5);
     if same {
         return pred.clone();
     }
@@ -118,14 +133,27 @@ fn transfer_weights(gt_pos: &[glam::Vec3], pred_pos: &[glam::Vec3], pred: &SkinW
     SkinWeights {
         per_vertex: gt_pos
             .iter()
-            .map(|&p| grid.nearest(p).map(|(i, _)| pred.per_vertex[i].clone()).unwrap_or_default())
+            .map(|&p| {
+                grid.nearest(p)
+                    .map(|(i, _)| pred.per_vertex[i].clone())
+                    .unwrap_or_default()
+            })
             .collect(),
     }
 }
 
 /// Scores one predicted rig file against one ground-truth file.
-pub fn score_pair(gt_path: &Path, pred_path: &Path, limits: &Limits) -> Result<ModelReport, ErrorInfo> {
-    let (gt_mesh, gt) = load_rig(gt_path, limits).map_err(|e| err("ground_truth_unreadable", format!("{}: {}", e.code, e.message)))?;
+pub fn score_pair(
+    gt_path: &Path,
+    pred_path: &Path,
+    limits: &Limits,
+) -> Result<ModelReport, ErrorInfo> {
+    let (gt_mesh, gt) = load_rig(gt_path, limits).map_err(|e| {
+        err(
+            "ground_truth_unreadable",
+            format!("{}: {}", e.code, e.message),
+        )
+    })?;
     let mut report = ModelReport {
         file: String::new(),
         category: String::new(),
@@ -146,8 +174,21 @@ pub fn score_pair(gt_path: &Path, pred_path: &Path, limits: &Limits) -> Result<M
     let frame = Frame::from_points(&gt_mesh.positions);
     report.joints_pred = pred.skeleton.len();
     report.skeleton = Some(score_skeleton(&pred.skeleton, &gt.skeleton, &frame));
-    let weights = transfer_weights(&gt_mesh.positions, &pred_mesh.positions, &pred.weights, &frame);
-    match score_skin(&pred.skeleton, &weights, &gt.skeleton, &gt.weights, &gt_mesh.positions, &frame, POSE_SEED) {
+    let weights = transfer_weights(
+        &gt_mesh.positions,
+        &pred_mesh.positions,
+        &pred.weights,
+        &frame,
+    );
+    match score_skin(
+        &pred.skeleton,
+        &weights,
+        &gt.skeleton,
+        &gt.weights,
+        &gt_mesh.positions,
+        &frame,
+        POSE_SEED,
+    ) {
         Ok(s) => report.skin = Some(s),
         Err(e) => report.error = Some(err(e.code(), e)),
     }
@@ -160,14 +201,23 @@ fn group(models: &[&ModelReport]) -> GroupReport {
     GroupReport {
         count: models.len(),
         valid,
-        valid_fraction: if models.is_empty() { f32::NAN } else { valid as f32 / models.len() as f32 },
+        valid_fraction: if models.is_empty() {
+            f32::NAN
+        } else {
+            valid as f32 / models.len() as f32
+        },
         skeleton: SkeletonScores::mean(models.iter().filter_map(|m| m.skeleton.as_ref())),
         skin: SkinScores::mean(models.iter().filter_map(|m| m.skin.as_ref())),
     }
 }
 
 /// Builds the report from per-model results (shared by every eval mode).
-pub fn summarize(dataset: &Path, split: Option<&str>, mode: &str, models: Vec<ModelReport>) -> Report {
+pub fn summarize(
+    dataset: &Path,
+    split: Option<&str>,
+    mode: &str,
+    models: Vec<ModelReport>,
+) -> Report {
     let mut cats: BTreeMap<String, Vec<&ModelReport>> = BTreeMap::new();
     for m in &models {
         cats.entry(m.category.clone()).or_default().push(m);
@@ -185,10 +235,18 @@ pub fn summarize(dataset: &Path, split: Option<&str>, mode: &str, models: Vec<Mo
 
 /// `rigserve eval --pred DIR`: scores the rigged files in `pred` (same file names as the
 /// data set) against the data set's own rigs.
-pub fn eval_pred(dataset: &Path, split: Option<&str>, pred: &Path, limits: &Limits) -> Result<Report, EvalError> {
+pub fn eval_pred(
+    dataset: &Path,
+    split: Option<&str>,
+    pred: &Path,
+    limits: &Limits,
+) -> Result<Report, EvalError> {
     let entries = read_manifest(dataset)?;
     let mut models = Vec::new();
-    for e in entries.iter().filter(|e| split.is_none() || e.split.as_deref() == split) {
+    for e in entries
+        .iter()
+        .filter(|e| split.is_none() || e.split.as_deref() == split)
+    {
         let mut m = match score_pair(&dataset.join(&e.file), &pred.join(&e.file), limits) {
             Ok(m) => m,
             Err(info) => ModelReport {

@@ -2,13 +2,24 @@ use rigserve::dataset::{build, DatasetConfig};
 use rigserve::mesh::Limits;
 use std::path::Path;
 
-pub fn run(dir: &Path, split: Option<&str>, out: &Path, cfg: DatasetConfig, limits: &Limits) -> anyhow::Result<()> {
+pub fn run(
+    dir: &Path,
+    split: Option<&str>,
+    out: &Path,
+    cfg: DatasetConfig,
+    limits: &Limits,
+) -> anyhow::Result<()> {
     let entries: Vec<_> = rigserve::eval::read_manifest(dir)?
         .into_iter()
         .filter(|e| split.is_none() || e.split.as_deref() == split)
         .collect();
     let summary = build(dir, &entries, out, &cfg, limits)?;
-    eprintln!("{} files -> {} items in {}", summary.files, summary.items, out.display());
+    eprintln!(
+        "{} files -> {} items in {}",
+        summary.files,
+        summary.items,
+        out.display()
+    );
     for (f, why) in &summary.skipped {
         eprintln!("skipped {f}: {why}");
     }

@@ -2,12 +2,21 @@ use anyhow::Context;
 use rigserve::mesh::Limits;
 use std::path::Path;
 
-pub fn run(dataset: &Path, split: Option<&str>, pred: Option<&Path>, out: &Path, limits: &Limits) -> anyhow::Result<()> {
+pub fn run(
+    dataset: &Path,
+    split: Option<&str>,
+    pred: Option<&Path>,
+    out: &Path,
+    limits: &Limits,
+) -> anyhow::Result<()> {
     let Some(pred) = pred else {
-        anyhow::bail!("eval needs --pred DIR until the shipped models land (model-driven evaluation)");
+        anyhow::bail!(
+            "eval needs --pred DIR until the shipped models land (model-driven evaluation)"
+        );
     };
     let report = rigserve::eval::eval_pred(dataset, split, pred, limits)?;
-    std::fs::write(out, serde_json::to_vec_pretty(&report)?).with_context(|| format!("writing {}", out.display()))?;
+    std::fs::write(out, serde_json::to_vec_pretty(&report)?)
+        .with_context(|| format!("writing {}", out.display()))?;
     let o = &report.overall;
     eprintln!(
         "{} models, {:.1}% valid | CD-J2J {:.4} CD-J2B {:.4} CD-B2B {:.4} | skin L1 {:.4} P {:.3} R {:.3} deform {:.4}",

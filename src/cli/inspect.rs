@@ -8,10 +8,16 @@ pub fn run(file: &Path, json: bool, limits: &Limits) -> anyhow::Result<()> {
     let asset = mesh::load(&bytes, limits).map_err(|e| anyhow::anyhow!("{} [{}]", e, e.code()))?;
     let gt = groundtruth::extract(&asset).map_err(|e| anyhow::anyhow!("{} [{}]", e, e.code()))?;
     let Some(gt) = gt else {
-        anyhow::bail!("{} has no skinned mesh, so no bone tree [no_skin]", file.display());
+        anyhow::bail!(
+            "{} has no skinned mesh, so no bone tree [no_skin]",
+            file.display()
+        );
     };
     if json {
-        println!("{}", serde_json::to_string_pretty(&rigserve::export::bone_tree(&gt.skeleton))?);
+        println!(
+            "{}",
+            serde_json::to_string_pretty(&rigserve::export::bone_tree(&gt.skeleton))?
+        );
         return Ok(());
     }
     let m = &asset.mesh;
@@ -30,7 +36,13 @@ pub fn run(file: &Path, json: bool, limits: &Limits) -> anyhow::Result<()> {
     stack.reverse();
     while let Some((b, depth)) = stack.pop() {
         let bone = &gt.skeleton.bones[b];
-        println!("{:indent$}{} {:.4?}", "", bone.name, bone.head.to_array(), indent = depth * 2);
+        println!(
+            "{:indent$}{} {:.4?}",
+            "",
+            bone.name,
+            bone.head.to_array(),
+            indent = depth * 2
+        );
         stack.extend(children[b].iter().rev().map(|&c| (c, depth + 1)));
     }
     Ok(())

@@ -9,7 +9,11 @@ use rigserve::mesh::Limits;
 use std::path::PathBuf;
 
 #[derive(Parser, Debug)]
-#[command(name = "rigserve", version, about = "Auto-rigging for 3D meshes: skeletons, skin weights, rigged GLB")]
+#[command(
+    name = "rigserve",
+    version,
+    about = "Auto-rigging for 3D meshes: skeletons, skin weights, rigged GLB"
+)]
 pub struct Cli {
     #[command(subcommand)]
     pub command: Command,
@@ -107,10 +111,26 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
                 max_bones: a.max_bones,
                 augment_config: Default::default(),
             };
-            dataset::run(&a.input, a.split.as_deref(), &a.out, cfg, &a.limits.limits())
+            dataset::run(
+                &a.input,
+                a.split.as_deref(),
+                &a.out,
+                cfg,
+                &a.limits.limits(),
+            )
         }
-        Command::Eval { dataset, split, pred, out, limits } => {
-            eval::run(&dataset, split.as_deref(), pred.as_deref(), &out, &limits.limits())
-        }
+        Command::Eval {
+            dataset,
+            split,
+            pred,
+            out,
+            limits,
+        } => eval::run(
+            &dataset,
+            split.as_deref(),
+            pred.as_deref(),
+            &out,
+            &limits.limits(),
+        ),
     }
 }

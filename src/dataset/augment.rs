@@ -23,7 +23,13 @@ pub struct AugmentConfig {
 
 impl Default for AugmentConfig {
     fn default() -> Self {
-        AugmentConfig { pose_deg: 20.0, yaw_deg: 30.0, tilt_deg: 8.0, stretch: 1.25, drop_chain: 0.15 }
+        AugmentConfig {
+            pose_deg: 20.0,
+            yaw_deg: 30.0,
+            tilt_deg: 8.0,
+            stretch: 1.25,
+            drop_chain: 0.15,
+        }
     }
 }
 
@@ -49,14 +55,23 @@ pub fn augment(
         b.tail = m.transform_point3(b.tail);
     }
     let yaw = Quat::from_rotation_y(uniform(&mut rng, -cfg.yaw_deg, cfg.yaw_deg).to_radians());
-    let tilt_axis = Vec3::new(uniform(&mut rng, -1.0, 1.0), 0.0, uniform(&mut rng, -1.0, 1.0)).normalize_or_zero();
+    let tilt_axis = Vec3::new(
+        uniform(&mut rng, -1.0, 1.0),
+        0.0,
+        uniform(&mut rng, -1.0, 1.0),
+    )
+    .normalize_or_zero();
     let tilt = if tilt_axis == Vec3::ZERO {
         Quat::IDENTITY
     } else {
         Quat::from_axis_angle(tilt_axis, uniform(&mut rng, 0.0, cfg.tilt_deg).to_radians())
     };
     let s = cfg.stretch.max(1.0).ln();
-    let scale = Vec3::new(uniform(&mut rng, -s, s).exp(), uniform(&mut rng, -s, s).exp(), uniform(&mut rng, -s, s).exp());
+    let scale = Vec3::new(
+        uniform(&mut rng, -s, s).exp(),
+        uniform(&mut rng, -s, s).exp(),
+        uniform(&mut rng, -s, s).exp(),
+    );
     let m = Mat4::from_quat(tilt * yaw) * Mat4::from_scale(scale);
     pos.iter_mut().for_each(|p| *p = m.transform_point3(*p));
     out.map_points(|p| m.transform_point3(p));
@@ -74,7 +89,9 @@ fn drop_leaf_chain(skel: &Skeleton, rng: &mut SplitMix64) -> Skeleton {
         Some(_) => crate::rig::template::BODY_BONES,
         None => 0,
     };
-    let leaves: Vec<usize> = (protected..skel.len()).filter(|&i| children[i].is_empty()).collect();
+    let leaves: Vec<usize> = (protected..skel.len())
+        .filter(|&i| children[i].is_empty())
+        .collect();
     if leaves.is_empty() || skel.len() < 4 {
         return skel.clone();
     }
@@ -84,7 +101,11 @@ fn drop_leaf_chain(skel: &Skeleton, rng: &mut SplitMix64) -> Skeleton {
     loop {
         drop[cur] = true;
         match skel.bones[cur].parent {
-            Some(p) if p >= protected && children[p].len() == 1 && skel.bones[p].parent.is_some() => cur = p,
+            Some(p)
+                if p >= protected && children[p].len() == 1 && skel.bones[p].parent.is_some() =>
+            {
+                cur = p
+            }
             _ => break,
         }
     }
@@ -92,7 +113,11 @@ fn drop_leaf_chain(skel: &Skeleton, rng: &mut SplitMix64) -> Skeleton {
         return skel.clone();
     }
     let mut remap = vec![usize::MAX; skel.len()];
-    let mut out = Skeleton { bones: Vec::new(), template: skel.template, category: skel.category.clone() };
+    let mut out = Skeleton {
+        bones: Vec::new(),
+        template: skel.template,
+        category: skel.category.clone(),
+    };
     for (i, b) in skel.bones.iter().enumerate() {
         if drop[i] {
             continue;

@@ -54,7 +54,13 @@ pub enum DatasetError {
 }
 
 /// Writes the data set for the given entries of `dir`.
-pub fn build(dir: &Path, entries: &[ManifestEntry], out: &Path, cfg: &DatasetConfig, limits: &Limits) -> Result<DatasetSummary, DatasetError> {
+pub fn build(
+    dir: &Path,
+    entries: &[ManifestEntry],
+    out: &Path,
+    cfg: &DatasetConfig,
+    limits: &Limits,
+) -> Result<DatasetSummary, DatasetError> {
     std::fs::create_dir_all(out)?;
     let mut points = std::io::BufWriter::new(std::fs::File::create(out.join("points.f32"))?);
     let mut index = std::io::BufWriter::new(std::fs::File::create(out.join("index.jsonl"))?);
@@ -82,13 +88,22 @@ pub fn build(dir: &Path, entries: &[ManifestEntry], out: &Path, cfg: &DatasetCon
             let (positions, mut skel) = if aug == 0 {
                 (mesh.positions.clone(), base.clone())
             } else {
-                augment(&mesh.positions, &base, &gt.weights, &cfg.augment_config, seed)
+                augment(
+                    &mesh.positions,
+                    &base,
+                    &gt.weights,
+                    &cfg.augment_config,
+                    seed,
+                )
             };
             let norm = Normalization::from_points(&positions);
             skel.map_points(|p| norm.apply(p));
             skel.category = Some(e.category.clone());
             if skel.len() > cfg.max_bones {
-                summary.skipped.push((e.file.clone(), format!("{} bones > {}", skel.len(), cfg.max_bones)));
+                summary.skipped.push((
+                    e.file.clone(),
+                    format!("{} bones > {}", skel.len(), cfg.max_bones),
+                ));
                 break;
             }
             let tokens = match tokenize(&skel) {
@@ -98,14 +113,26 @@ pub fn build(dir: &Path, entries: &[ManifestEntry], out: &Path, cfg: &DatasetCon
                     continue;
                 }
             };
-            let unit = Mesh { positions: positions.iter().map(|&p| norm.apply(p)).collect(), triangles: mesh.triangles.clone(), ..Mesh::default() };
+            let unit = Mesh {
+                positions: positions.iter().map(|&p| norm.apply(p)).collect(),
+                triangles: mesh.triangles.clone(),
+                ..Mesh::default()
+            };
             let s = sample_surface(&unit, cfg.points, seed);
             for (p, n) in s.points.iter().zip(&s.normals) {
                 for v in [p.x, p.y, p.z, n.x, n.y, n.z] {
                     points.write_all(&v.to_le_bytes())?;
                 }
             }
-            let item = Item { file: &e.file, category: &e.category, aug, bones: skel.len(), template: skel.template, tokens, normalization: norm };
+            let item = Item {
+                file: &e.file,
+                category: &e.category,
+                aug,
+                bones: skel.len(),
+                template: skel.template,
+                tokens,
+                normalization: norm,
+            };
             serde_json::to_writer(&mut index, &item).map_err(std::io::Error::from)?;
             index.write_all(b"\n")?;
             summary.items += 1;

@@ -407,7 +407,9 @@ impl Document {
     pub fn require_data(&self, index: usize) -> Result<(), MeshError> {
         match self.root.accessors.get(index) {
             Some(a) if a.buffer_view.is_none() && a.sparse.is_none() && a.count > 0 => {
-                Err(MeshError::Invalid(format!("accessor {index} has no bufferView and no sparse values")))
+                Err(MeshError::Invalid(format!(
+                    "accessor {index} has no bufferView and no sparse values"
+                )))
             }
             _ => Ok(()),
         }

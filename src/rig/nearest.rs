@@ -13,19 +13,32 @@ pub struct PointGrid<'a> {
 
 impl<'a> PointGrid<'a> {
     pub fn new(points: &'a [Vec3]) -> Self {
-        let (lo, hi) = points
-            .iter()
-            .fold((Vec3::splat(f32::MAX), Vec3::splat(f32::MIN)), |(lo, hi), &p| (lo.min(p), hi.max(p)));
-        let extent = if points.is_empty() { 1.0 } else { (hi - lo).max_element().max(1e-9) };
+        let (lo, hi) = points.iter().fold(
+            (Vec3::splat(f32::MAX), Vec3::splat(f32::MIN)),
+            |(lo, hi), &p| (lo.min(p), hi.max(p)),
+        );
+        let extent = if points.is_empty() {
+            1.0
+        } else {
+            (hi - lo).max_element().max(1e-9)
+        };
         // About two points per occupied cell for surface-like sets.
         let per_axis = ((points.len() as f32).sqrt()).clamp(1.0, 1024.0);
         let cell = extent / per_axis;
         let origin = if points.is_empty() { Vec3::ZERO } else { lo };
         let mut cells: HashMap<(i32, i32, i32), Vec<u32>> = HashMap::new();
         for (i, &p) in points.iter().enumerate() {
-            cells.entry(key(p, origin, cell)).or_default().push(i as u32);
+            cells
+                .entry(key(p, origin, cell))
+                .or_default()
+                .push(i as u32);
         }
-        PointGrid { points, cell, origin, cells }
+        PointGrid {
+            points,
+            cell,
+            origin,
+            cells,
+        }
     }
 
     /// Index of the nearest point and its distance; None for an empty set.

@@ -1,0 +1,121 @@
+//! `rigserve eval --pred`, run as a user runs it: the data set scored against itself is
+//! perfect, and a copy with known damage reports that damage.
+mod common;
+
+use glam::Vec3;
+use rigserve::export::{export_glb, ExportOptions};
+use rigserve::mesh::{load, Limits, Normalization};
+use rigserve::rig::groundtruth::extract;
+use serde_json::Value;
+use std::path::Path;
+use std::process::Command;
+
+fn eval(dataset: &Path, pred: &Path, out: &Path, split: Option<&str>) -> Value {
+    let mut cmd = Command::new(env!("CARGO_BIN_EXE_rigserve"));
+    cmd.args(["eval", "--dataset"])
+        .arg(dataset)
+        .arg("--pred")
+        .arg(pred)
+        .arg("--out")
+        .arg(out);
+    if let Some(s) = split {
+        cmd.args(["--split", s]);
+    }
+    let status = cmd.status().expect("run rigserve eval");
+    assert!(status.success());
+    serde_json::from_slice(&std::fs::read(out).unwrap()).unwrap()
+}
+
+#[test]
+fn the_data_set_scores_perfectly_against_itself() {
+    let Some(dir) = common::shared_rigs() else {
+        return;
+    };
+    let tmp = tempfile::tempdir().unwrap();
+    let r = eval(&dir, &dir, &tmp.path().join("r.json"), None);
+    let o = &r["overall"];
+    assert_eq!(o["count"], 163);
+    assert_eq!(o["valid_fraction"], 1.0);
+    for k in ["cd_j2j", "cd_j2b", "cd_b2b"] {
+        assert_eq!(o["skeleton"][k], 0.0, "{k}");
+    }
+    assert_eq!(o["skin"]["l1"], 0.0);
+    assert_eq!(o["skin"]["deformation"], 0.0);
+    assert_eq!(o["skin"]["precision"], 1.0);
+    assert_eq!(o["skin"]["recall"], 1.0);
+    assert_eq!(r["per_category"].as_object().unwrap().len(), 8);
+    let dev = eval(&dir, &dir, &tmp.path().join("dev.json"), Some("dev"));
+    assert_eq!(dev["overall"]["count"], 23);
+}
+
+/// A perturbed copy: every joint shifted by a known offset in one file, every weight moved
+/// to the root bone in another, and a third file missing.
+#[test]
+fn a_perturbed_copy_reports_the_expected_error() {
+    let Some(dir) = common::shared_rigs() else {
+        return;
+    };
+    let entries = common::manifest(&dir);
+    let pick: Vec<_> = entries
+        .iter()
+        .filter(|e| e.split == "dev")
+        .take(3)
+        .collect();
+    let tmp = tempfile::tempdir().unwrap();
+    let (data, pred) = (tmp.path().join("data"), tmp.path().join("pred"));
+    std::fs::create_dir_all(&data).unwrap();
+    std::fs::create_dir_all(&pred).unwrap();
+    let mut manifest = String::from("file\tsplit\tcategory\n");
+    let mut expected_j2j = 0.0;
+    for (i, e) in pick.iter().enumerate() {
+        std::fs::copy(dir.join(&e.file), data.join(&e.file)).unwrap();
+        manifest += &format!("{}\tdev\t{}\n", e.file, e.category);
+        let asset = load(
+            &std::fs::read(dir.join(&e.file)).unwrap(),
+            &Limits::default(),
+        )
+        .unwrap();
+        let gt = extract(&asset).unwrap().unwrap();
+        let mut skel = gt.skeleton.clone();
+        let mut weights = gt.weights.clone();
+        weights.top_k(4);
+        match i {
+            0 => {
+                let half = Normalization::from_points(&asset.mesh.positions).half_extent;
+                // 5% of the half extent along X: every joint's nearest is its own copy.
+                let d = Vec3::new(0.05 * half, 0.0, 0.0);
+                skel.map_points(|p| p + d);
+                expected_j2j = 0.05 / 2.0;
+            }
+            1 => {
+                for w in weights.per_vertex.iter_mut().filter(|w| !w.is_empty()) {
+                    *w = vec![(0, 1.0)];
+                }
+            }
+            _ => continue,
+        }
+        let glb = export_glb(&asset, &skel, &weights, &ExportOptions::default()).unwrap();
+        std::fs::write(pred.join(&e.file), glb).unwrap();
+    }
+    std::fs::write(data.join("manifest.tsv"), manifest).unwrap();
+    let r = eval(&data, &pred, &tmp.path().join("r.json"), None);
+    let m = r["models"].as_array().unwrap();
+    let f = |v: &Value| v.as_f64().unwrap();
+    // Shifted joints: J2J is the shift in reported units; skin metrics are untouched.
+    assert!(
+        (f(&m[0]["skeleton"]["cd_j2j"]) - expected_j2j).abs() < 1e-3,
+        "{}",
+        m[0]
+    );
+    assert!(f(&m[0]["skeleton"]["cd_b2b"]) > 0.0);
+    assert!(f(&m[0]["skin"]["l1"]) < 1e-5);
+    // Weights moved to the root: skeleton exact, skin wrong, deformation visible.
+    assert!(f(&m[1]["skeleton"]["cd_j2j"]) < 1e-5);
+    assert!(f(&m[1]["skin"]["l1"]) > 0.5, "{}", m[1]);
+    assert!(f(&m[1]["skin"]["deformation"]) > 0.0);
+    assert!(f(&m[1]["skin"]["recall"]) < 1.0);
+    // Missing output: counted as invalid.
+    assert_eq!(m[2]["valid"], false);
+    assert_eq!(m[2]["error"]["code"], "missing");
+    assert!((f(&r["overall"]["valid_fraction"]) - 2.0 / 3.0).abs() < 1e-6);
+}
