@@ -13,3 +13,21 @@ if ! python3 -c "import bpy" >/dev/null 2>&1; then
   echo "setup: installing bpy==5.0.1 (headless Blender, about 400 MB)"
   python3 -m pip install --quiet --disable-pip-version-check bpy==5.0.1
 fi
+
+# ONNX Runtime for the `ort` crate (load-dynamic): the shared library from the PyPI
+# wheel, unpacked into .onnxruntime/ (git-ignored). RIGSERVE_ORT_LIB points at it.
+ORT_LIB=.onnxruntime/libonnxruntime.so.1.31.1
+if [ ! -f "$ORT_LIB" ]; then
+  echo "setup: fetching onnxruntime==1.31.1 (PyPI wheel) for libonnxruntime.so"
+  tmp=$(mktemp -d)
+  python3 -m pip download --quiet --disable-pip-version-check --no-deps --only-binary=:all: -d "$tmp" onnxruntime==1.31.1
+  mkdir -p .onnxruntime
+  python3 - "$tmp" <<'PY'
+import glob, sys, zipfile
+wheel = glob.glob(sys.argv[1] + "/onnxruntime-1.31.1-*.whl")[0]
+with zipfile.ZipFile(wheel) as z:
+    name = "onnxruntime/capi/libonnxruntime.so.1.31.1"
+    open(".onnxruntime/libonnxruntime.so.1.31.1", "wb").write(z.read(name))
+PY
+  rm -rf "$tmp"
+fi

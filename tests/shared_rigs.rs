@@ -64,3 +64,97 @@ fn every_shared_rig_loads_with_ground_truth() {
         "only {near} of {total} joints lie near their meshes"
     );
 }
+
+#[test]
+fn every_shared_rig_tokenization_round_trips() {
+    use rigserve::mesh::Normalization;
+    use rigserve::rig::template::match_mixamo;
+    use rigserve::rig::tokenizer::{detokenize, same_topology, tokenize, tokenize_with_order, ALT};
+    // Half a bin per axis, plus float slack.
+    const HALF_BIN: f32 = 1.0 / 256.0 + 1e-5;
+    let Some(dir) = common::shared_rigs() else {
+        return;
+    };
+    let (mut templated, mut exact, mut with_alt, mut total) = (0, 0, 0, 0);
+    let mut failures = Vec::new();
+    for e in common::manifest(&dir) {
+        total += 1;
+        let bytes = std::fs::read(dir.join(&e.file)).unwrap();
+        let asset = load(&bytes, &Limits::default()).unwrap();
+        let gt = extract(&asset).unwrap().unwrap();
+        let norm = Normalization::from_points(&asset.mesh.positions);
+        let mut skel = match_mixamo(&gt.skeleton).unwrap_or(gt.skeleton);
+        templated += skel.template.is_some() as usize;
+        // Joints outside the mesh's box (IK targets, end bones past the tip) cannot be
+        // written: coordinates are clipped to [-1, 1], so compare against that.
+        skel.map_points(|p| {
+            norm.apply(p)
+                .clamp(glam::Vec3::splat(-1.0), glam::Vec3::splat(1.0))
+        });
+        skel.category = Some(e.category.clone());
+        let (tokens, order) =
+            tokenize_with_order(&skel).unwrap_or_else(|err| panic!("{}: {err}", e.file));
+        with_alt += tokens.contains(&ALT) as usize;
+        let back = detokenize(&tokens).unwrap_or_else(|err| panic!("{}: {err}", e.file));
+        assert_eq!(back.len(), skel.len(), "{}", e.file);
+        assert_eq!(order.len(), skel.len(), "{}", e.file);
+        assert_eq!(
+            back.category.as_deref(),
+            Some(e.category.as_str()),
+            "{}",
+            e.file
+        );
+        // Bone for bone through the emission order, so coincident joints cannot hide a
+        // rewired tree behind a lucky (or unlucky) pairing by position.
+        let mut at = vec![usize::MAX; skel.len()];
+        for (k, &i) in order.iter().enumerate() {
+            assert_eq!(at[i], usize::MAX, "{}: bone {i} written twice", e.file);
+            at[i] = k;
+        }
+        let wrong = order.iter().enumerate().find_map(|(k, &i)| {
+            let (o, d) = (&skel.bones[i], &back.bones[k]);
+            let parent = o.parent.map(|p| at[p]);
+            let gap = (d.head - o.head).abs();
+            if d.parent != parent {
+                Some(format!(
+                    "decoded bone {k} is {} (bone {i}); its parent should be {parent:?}, is {:?}",
+                    o.name, d.parent
+                ))
+            } else if d.spring != o.spring {
+                Some(format!(
+                    "decoded bone {k} ({}) lost its spring flag",
+                    o.name
+                ))
+            } else if !gap.cmple(glam::Vec3::splat(HALF_BIN)).all() {
+                Some(format!(
+                    "decoded bone {k} ({}) is {gap:?} off {:?}",
+                    o.name, o.head
+                ))
+            } else {
+                None
+            }
+        });
+        match wrong {
+            Some(why) => failures.push(format!("{}: {why}", e.file)),
+            None => exact += 1,
+        }
+        // The order-free check (what predictions are compared with) must agree.
+        if let Err(why) = same_topology(&skel, &back, HALF_BIN) {
+            failures.push(format!("{}: same_topology: {why}", e.file));
+        }
+        if tokenize(&back).as_ref() != Ok(&tokens) {
+            failures.push(format!("{}: re-tokenizing changed the tokens", e.file));
+        }
+    }
+    eprintln!(
+        "{exact} of {total} rigs round-trip exactly; {with_alt} needed <alt>; \
+         {templated} mapped onto the Mixamo template"
+    );
+    assert!(templated > 0, "no humanoid matched the Mixamo template");
+    assert!(
+        failures.is_empty(),
+        "round trip changed {} rigs:\n{}",
+        failures.len(),
+        failures.join("\n")
+    );
+}

@@ -16,6 +16,10 @@ pub struct SurfaceSamples {
 pub struct SplitMix64(pub u64);
 
 impl SplitMix64 {
+    pub fn new(seed: u64) -> Self {
+        SplitMix64(seed)
+    }
+
     pub fn next_u64(&mut self) -> u64 {
         self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
         let mut z = self.0;
@@ -27,6 +31,19 @@ impl SplitMix64 {
     /// Uniform in [0, 1).
     pub fn next_f64(&mut self) -> f64 {
         (self.next_u64() >> 11) as f64 * (1.0 / (1u64 << 53) as f64)
+    }
+
+    /// Uniform in [0, 1): the top 24 bits fill an f32 mantissa exactly.
+    pub fn next_f32(&mut self) -> f32 {
+        (self.next_u64() >> 40) as f32 / (1u32 << 24) as f32
+    }
+
+    /// Uniform on the unit sphere (Archimedes: z uniform in [-1, 1], azimuth uniform).
+    pub fn unit_vec3(&mut self) -> Vec3 {
+        let z = 2.0 * self.next_f32() - 1.0;
+        let phi = std::f32::consts::TAU * self.next_f32();
+        let r = (1.0 - z * z).max(0.0).sqrt();
+        Vec3::new(r * phi.cos(), r * phi.sin(), z).normalize()
     }
 }
 

@@ -9,15 +9,17 @@
 //! Beyond the shape of the sequence (see [`super::tokenizer`]), [`Grammar::new`] only lets a
 //! branch's parent position be the exact position of a joint already decoded: the parent is
 //! found by position, and a position matching no joint would be snapped to the nearest one
-//! anyway. The lenient grammar accepts any parent position and snaps it, which is what a
-//! sequence from an unconstrained decoder needs.
+//! anyway. It then offers `<alt>` only while the parent's cell holds another earlier joint
+//! to step to, so every `<alt>` changes the parent. The lenient grammar accepts any parent
+//! position and snaps it to the nearest joint, whose cell `<alt>` then steps through, which
+//! is what a sequence from an unconstrained decoder needs.
 //!
 //! [`detokenize`]: super::tokenizer::detokenize
 
 use super::template::{self, Side, BODY_BONES, BODY_PARENTS, HAND_BONES, LEFT_HAND, RIGHT_HAND};
 use super::tokenizer::{
-    hand_side, is_class_token, is_coord, token_name, BOS, BRANCH, COORD_BINS, EOS, MIXAMO_BODY,
-    MIXAMO_HAND, PAD, SPRING, VOCAB_SIZE,
+    hand_side, is_class_token, is_coord, token_name, ALT, BOS, BRANCH, COORD_BINS, EOS,
+    MIXAMO_BODY, MIXAMO_HAND, PAD, SPRING, VOCAB_SIZE,
 };
 
 const MASK_WORDS: usize = VOCAB_SIZE.div_ceil(64);
@@ -94,6 +96,8 @@ pub enum GrammarError {
     TooManyBones(u32, usize),
     #[error("coordinate {0} puts the branch's parent where no joint is")]
     NoSuchParent(u32),
+    #[error("<alt> past the last of the {0} earlier joints in the branch parent's cell")]
+    NoMoreAlternatives(usize),
     #[error("token {} cannot come here; expected {expected}", token_name(*token))]
     Unexpected { token: u32, expected: &'static str },
 }
@@ -136,6 +140,14 @@ enum State {
         spring: bool,
         got: [u8; 3],
         n: usize,
+    },
+    /// After a branch's parent position: each `<alt>` steps to the next earlier joint of
+    /// `cell`, of which there are `count`; the joint's first coordinate settles the parent.
+    Alt {
+        spring: bool,
+        cell: [u8; 3],
+        rank: usize,
+        count: usize,
     },
     Joint {
         parent: Option<usize>,
@@ -186,8 +198,9 @@ impl Grammar {
         }
     }
 
-    /// Like [`Grammar::new`] but a branch's parent may be any position (the nearest joint is
-    /// taken). Accepts exactly the sequences `detokenize` accepts.
+    /// Like [`Grammar::new`] but a branch's parent may be any position: it snaps to the
+    /// nearest joint, and `<alt>` steps through the joints sharing that joint's cell. Accepts
+    /// exactly the sequences `detokenize` accepts.
     pub fn lenient(max_bones: usize) -> Self {
         Grammar {
             snap_parents: false,
@@ -288,6 +301,7 @@ impl Grammar {
                     || (is_coord(tok) && !self.joints.is_empty() && self.parent_coord_ok(&[], tok))
             }
             State::Parent { got, n, .. } => is_coord(tok) && self.parent_coord_ok(&got[..n], tok),
+            State::Alt { rank, count, .. } => is_coord(tok) || (tok == ALT && rank + 1 < count),
             State::Joint { .. } | State::Template { .. } => is_coord(tok),
             State::Done => tok == PAD,
         }
@@ -298,7 +312,7 @@ impl Grammar {
     pub fn allowed(&self) -> TokenMask {
         let mut m = TokenMask::default();
         let coords_any = match self.state {
-            State::Joint { .. } | State::Template { .. } => true,
+            State::Joint { .. } | State::Template { .. } | State::Alt { .. } => true,
             State::Parent { got, n, .. } => {
                 self.insert_parent_coords(&mut m, &got[..n]);
                 false
@@ -425,11 +439,34 @@ impl Grammar {
                         n: n + 1,
                     }
                 } else {
-                    State::Joint {
-                        parent: Some(self.nearest(got)),
+                    let cell = self.joints[self.nearest(got)].q;
+                    State::Alt {
                         spring,
-                        got: [0; 3],
-                        n: 0,
+                        cell,
+                        rank: 0,
+                        count: self.joints.iter().filter(|j| j.q == cell).count(),
+                    }
+                }
+            }
+            State::Alt {
+                spring,
+                cell,
+                rank,
+                count,
+            } => {
+                if tok == ALT {
+                    State::Alt {
+                        spring,
+                        cell,
+                        rank: rank + 1,
+                        count,
+                    }
+                } else {
+                    State::Joint {
+                        parent: Some(self.nth_in_cell(cell, rank)),
+                        spring,
+                        got: [c, 0, 0],
+                        n: 1,
                     }
                 }
             }
@@ -527,7 +564,20 @@ impl Grammar {
         State::Boundary
     }
 
-    /// The earliest joint nearest to a quantized position.
+    /// The `rank`-th (from 0) joint in `cell`, in decoding order. The caller has checked
+    /// that the cell holds more than `rank` joints.
+    fn nth_in_cell(&self, cell: [u8; 3], rank: usize) -> usize {
+        self.joints
+            .iter()
+            .enumerate()
+            .filter(|(_, j)| j.q == cell)
+            .nth(rank)
+            .map(|(i, _)| i)
+            .expect("<alt> is only allowed while the cell has another joint")
+    }
+
+    /// The earliest joint nearest to a quantized position. Joints of its cell are all as
+    /// near, so it is the first of them, where `<alt>` counts from.
     fn nearest(&self, q: [u8; 3]) -> usize {
         let d2 = |j: &DecodedJoint| -> i32 {
             (0..3).map(|a| (j.q[a] as i32 - q[a] as i32).pow(2)).sum()
@@ -575,6 +625,12 @@ impl Grammar {
                 }
                 "a parent coordinate"
             }
+            State::Alt { count, .. } => {
+                if tok == ALT {
+                    return GrammarError::NoMoreAlternatives(count);
+                }
+                "<alt> or a coordinate"
+            }
             State::Joint { .. } | State::Template { .. } => "a coordinate",
             State::Done => return GrammarError::AfterEnd(tok),
         };
@@ -593,14 +649,17 @@ mod tests {
     use crate::rig::tokenizer::{detokenize, tokenize, CLS_BASE, CLS_NONE};
 
     /// Longest sequence a walk may take: `<bos> <cls> <eos>` plus at most 7 tokens per bone
-    /// (`<spring>` + parent + joint), plus a template token per block and trailing slack.
+    /// (`<spring>` + parent + joint) and an `<alt>` per earlier joint, plus a template token
+    /// per block and trailing slack.
     fn bound(max_bones: usize) -> usize {
-        3 + 7 * max_bones + 3
+        3 + (7 + max_bones) * max_bones + 3
     }
 
     /// Walks the grammar picking uniformly among allowed tokens, or, with `bias`, among the
     /// allowed non-coordinate tokens half the time, so templates and springs show up often.
-    fn walk(rng: &mut Rng, g: &mut Grammar, bias: bool) -> Vec<u32> {
+    /// With `narrow`, coordinates come from bins 0 and 1 when allowed, so joints pile up in
+    /// a few cells and `<alt>` gets exercised.
+    fn walk(rng: &mut Rng, g: &mut Grammar, bias: bool, narrow: bool) -> Vec<u32> {
         let mut out = Vec::new();
         let limit = bound(g.max_bones());
         while !g.is_done() {
@@ -608,6 +667,15 @@ mod tests {
             assert!(!m.is_empty(), "dead end after {out:?}");
             let all: Vec<u32> = m.iter().collect();
             let specials: Vec<u32> = all.iter().copied().filter(|&t| !is_coord(t)).collect();
+            let few: Vec<u32> = all.iter().copied().filter(|&t| t >= 2).collect();
+            let all = if narrow && few.len() < all.len() && rng.chance(0.9) {
+                all.iter()
+                    .copied()
+                    .filter(|&t| !is_coord(t) || t < 2)
+                    .collect()
+            } else {
+                all
+            };
             let pool = if bias && !specials.is_empty() && rng.chance(0.5) {
                 &specials
             } else {
@@ -634,7 +702,7 @@ mod tests {
     #[test]
     fn random_walks_end_and_decode_to_valid_skeletons() {
         let mut rng = Rng::new(11);
-        let mut saw = [0usize; 4]; // body template, hands, springs, extra roots
+        let mut saw = [0usize; 5]; // body template, hands, springs, extra roots, <alt>
         for i in 0..3000 {
             let max = 1 + rng.below(if i % 3 == 0 { 70 } else { 12 });
             let mut g = if i % 2 == 0 {
@@ -642,7 +710,7 @@ mod tests {
             } else {
                 Grammar::lenient(max)
             };
-            let t = walk(&mut rng, &mut g, i % 4 < 2);
+            let t = walk(&mut rng, &mut g, i % 4 < 2, i % 5 < 2);
             let s = detokenize(&t).unwrap_or_else(|e| panic!("{e}: {t:?}"));
             s.validate(max).unwrap();
             assert_eq!(s.len(), g.bones());
@@ -650,6 +718,7 @@ mod tests {
             saw[1] += t.contains(&MIXAMO_HAND) as usize;
             saw[2] += t.contains(&SPRING) as usize;
             saw[3] += (s.roots().count() > 1) as usize;
+            saw[4] += t.contains(&ALT) as usize;
             for (i, b) in s.bones.iter().enumerate() {
                 assert!(b.parent.is_none_or(|p| p < i));
             }
@@ -778,6 +847,55 @@ mod tests {
         let g = Grammar::from_prefix(100, &late).unwrap();
         assert!(!g.allowed().contains(MIXAMO_HAND));
         assert!(g.allowed().contains(1));
+    }
+
+    #[test]
+    fn alt_steps_through_the_parent_cell() {
+        // Joints 0 and 1 share cell (1, 2, 3); joint 2 sits elsewhere.
+        let pre = [BOS, CLS_NONE, 1, 2, 3, 1, 2, 3, 9, 9, 9, BRANCH];
+        let mut g = Grammar::from_prefix(10, &pre).unwrap();
+        for t in [1, 2, 3] {
+            g.advance(t).unwrap();
+        }
+        let m = g.allowed();
+        assert!(m.contains(ALT) && m.contains(0) && m.len() == 257);
+        g.advance(ALT).unwrap();
+        assert!(!g.allowed().contains(ALT));
+        assert_eq!(g.advance(ALT), Err(GrammarError::NoMoreAlternatives(2)));
+        for t in [5, 5, 5] {
+            g.advance(t).unwrap();
+        }
+        assert_eq!(g.joints()[3].parent, Some(1));
+        // A cell with one joint has no alternative.
+        let mut g = Grammar::from_prefix(10, &pre).unwrap();
+        for t in [9, 9, 9] {
+            g.advance(t).unwrap();
+        }
+        assert!(!g.allowed().contains(ALT));
+        assert_eq!(g.advance(ALT), Err(GrammarError::NoMoreAlternatives(1)));
+        // Nowhere else.
+        let g = Grammar::from_prefix(10, &pre[..11]).unwrap();
+        assert!(!g.allowed().contains(ALT));
+        assert!(!Grammar::from_prefix(10, &pre)
+            .unwrap()
+            .allowed()
+            .contains(ALT));
+        assert!(Grammar::from_prefix(
+            10,
+            &[BOS, CLS_NONE, 1, 2, 3, 1, 2, 3, BRANCH, 1, 2, 3, 4, ALT]
+        )
+        .is_err());
+        // Lenient: an empty cell snaps to the nearest joint, and <alt> walks that joint's cell.
+        let mut g = Grammar::lenient(10);
+        for t in pre.iter().copied().chain([1, 2, 4, ALT, 7, 7, 7, EOS]) {
+            g.advance(t).unwrap();
+        }
+        assert_eq!(g.joints()[3].parent, Some(1));
+        let d = detokenize(&[
+            BOS, CLS_NONE, 1, 2, 3, 1, 2, 3, BRANCH, 1, 2, 3, ALT, 7, 7, 7, EOS,
+        ])
+        .unwrap();
+        assert_eq!(d.bones[2].parent, Some(1));
     }
 
     #[test]

@@ -59,6 +59,7 @@ use glam::{Mat4, Quat, Vec3};
 use serde::{Deserialize, Serialize};
 
 use super::skeleton::{Skeleton, SkinWeights};
+use crate::mesh::sample::SplitMix64;
 
 /// Samples per bone for B2B, counted as intervals: 100 intervals give 101 points.
 pub const BONE_SAMPLE_INTERVALS: usize = 100;
@@ -607,37 +608,6 @@ pub fn pose_one_bone(skel: &Skeleton, bone: usize, rotation: Quat) -> Vec<Mat4> 
     let mut rotations = vec![Quat::IDENTITY; skel.len()];
     rotations[bone] = rotation;
     skinning_matrices(skel, &rotations)
-}
-
-/// SplitMix64: tiny, fast, and fully determined by its seed, which is all the deformation
-/// poses need (they must be reproducible across runs and platforms).
-struct SplitMix64(u64);
-
-impl SplitMix64 {
-    fn new(seed: u64) -> Self {
-        SplitMix64(seed)
-    }
-
-    fn next_u64(&mut self) -> u64 {
-        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        z ^ (z >> 31)
-    }
-
-    /// Uniform in [0, 1): the top 24 bits fill an f32 mantissa exactly.
-    fn next_f32(&mut self) -> f32 {
-        (self.next_u64() >> 40) as f32 / (1u32 << 24) as f32
-    }
-
-    /// Uniform on the unit sphere (Archimedes: z uniform in [-1, 1], azimuth uniform).
-    fn unit_vec3(&mut self) -> Vec3 {
-        let z = 2.0 * self.next_f32() - 1.0;
-        let phi = std::f32::consts::TAU * self.next_f32();
-        let r = (1.0 - z * z).max(0.0).sqrt();
-        Vec3::new(r * phi.cos(), r * phi.sin(), z).normalize()
-    }
 }
 
 /// Running mean that skips undefined values, for per-category and overall averages.

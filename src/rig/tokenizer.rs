@@ -8,6 +8,10 @@
 //! | 0..=255   | coordinate bins                                                          |
 //! | 256..=262 | `<bos>` `<eos>` `<pad>` `<branch>` `<spring>` `<mixamo:body>` `<mixamo:hand>` |
 //! | 263..=271 | class tokens `<cls:…>`, one per entry of [`CATEGORIES`], in that order   |
+//! | 272       | `<alt>`                                                                  |
+//!
+//! `<alt>` came after the class tokens, so it is appended rather than grouped with the other
+//! specials: every earlier id keeps its meaning.
 //!
 //! # Coordinates
 //!
@@ -30,8 +34,9 @@
 //!
 //! The remaining bones are walked depth-first. A joint is written in one of these forms:
 //! - `x y z` — continues the chain: its parent is the joint written just before it;
-//! - `<branch> px py pz x y z` — starts a branch: its parent is the earlier joint nearest to
-//!   `(px, py, pz)` (the earliest one on a tie);
+//! - `<branch> px py pz <alt>{r} x y z` — starts a branch: its parent is the `r`-th (from 0)
+//!   of the earlier joints in the cell `(px, py, pz)`, in the order they were written (see
+//!   below);
 //! - `<branch> <branch> x y z` — a new root (UniRig has no form for extra roots; the doubled
 //!   token keeps them apart from branches, whatever their position);
 //! - `<spring>` in place of the first `<branch>` of the two forms above starts a spring chain:
@@ -47,11 +52,25 @@
 //! convention, the joint a bone writes, i.e. our head. Keying on quantized heads (never on
 //! tails, which decoding re-infers) makes `tokenize(detokenize(t)) == t`.
 //!
-//! # Known limitation
+//! # Coincident joints: `<alt>`
 //!
-//! A branch finds its parent by position. When two joints fall in the same quantization cell,
-//! the branch attaches to the earlier written one, which may not be its parent: the result is
-//! still a valid tree with the same joints, but its topology can differ from the original.
+//! A branch names its parent by position, and artist rigs often put several joints in one
+//! quantization cell (a root under the hips, IK targets on the root, collapsed fingers).
+//! UniRig attaches such a branch to whichever joint its decoder finds first, which silently
+//! rewires the tree. Here the encoder follows the parent coordinates with one `<alt>` per
+//! earlier-written joint of that cell that comes before the intended parent, so the common
+//! case (no other joint in the cell, or the parent written first) costs nothing and the
+//! decoded topology is always the original's. The grammar offers `<alt>` only while another
+//! joint of the cell is left to pick. [`tokenize_with_order`] also returns where each bone
+//! went, for checks that must not guess the correspondence from positions.
+//!
+//! Nothing else resolves by position in a way that can go wrong: extra roots are written
+//! without one, and a hand block whose side the decoder's rule would get wrong is written as
+//! ordinary branches instead (see [`tokenize`]). A sequence from an unconstrained decoder may
+//! name a cell holding no joint; it then snaps to the nearest joint, and `<alt>` counts among
+//! the joints of that joint's cell.
+
+use std::collections::HashMap;
 
 use glam::Vec3;
 
@@ -83,7 +102,15 @@ pub const CATEGORIES: [&str; 9] = [
     "robot_prop",
 ];
 pub const CLS_NONE: u32 = CLS_BASE;
-pub const VOCAB_SIZE: usize = CLS_BASE as usize + CATEGORIES.len();
+/// One past the last class token.
+const CLS_END: u32 = CLS_BASE + CATEGORIES.len() as u32;
+/// Picks the next earlier joint of a branch parent's cell (see the module docs).
+pub const ALT: u32 = 272;
+const _: () = assert!(
+    ALT == CLS_END,
+    "<alt> must directly follow the class tokens"
+);
+pub const VOCAB_SIZE: usize = ALT as usize + 1;
 
 const SPECIAL_NAMES: [&str; 7] = [
     "<bos>",
@@ -100,7 +127,7 @@ pub fn is_coord(tok: u32) -> bool {
 }
 
 pub fn is_class_token(tok: u32) -> bool {
-    (CLS_BASE..VOCAB_SIZE as u32).contains(&tok)
+    (CLS_BASE..CLS_END).contains(&tok)
 }
 
 /// Human-readable name of a token: the bin number for coordinates, `<…>` for the rest,
@@ -112,6 +139,8 @@ pub fn token_name(id: u32) -> String {
         SPECIAL_NAMES[(id - BOS) as usize].to_string()
     } else if is_class_token(id) {
         format!("<cls:{}>", CATEGORIES[(id - CLS_BASE) as usize])
+    } else if id == ALT {
+        "<alt>".to_string()
     } else {
         format!("<unk:{id}>")
     }
@@ -219,6 +248,14 @@ pub fn hand_side(left_hand: [u8; 3], right_hand: [u8; 3], block: &[[u8; 3]]) -> 
 /// other, are written as ordinary branches instead. `Some(MixamoHand)` alone
 /// has no body to hang from and is treated as no template.
 pub fn tokenize(skel: &Skeleton) -> Result<Vec<u32>, TokenizeError> {
+    tokenize_with_order(skel).map(|(tokens, _)| tokens)
+}
+
+/// [`tokenize`], plus the order the bones are written in: `order[k]` is the index in `skel`
+/// of bone `k` of [`detokenize`]'s result. Decoded bone `k` then has as parent the position
+/// in `order` of `skel`'s parent of `order[k]`, the same spring flag, and a head within half
+/// a bin of the (clipped) original; [`same_topology_in_order`] checks exactly that.
+pub fn tokenize_with_order(skel: &Skeleton) -> Result<(Vec<u32>, Vec<usize>), TokenizeError> {
     let n = skel.bones.len();
     if n == 0 {
         return Err(TokenizeError::Empty);
@@ -234,25 +271,25 @@ pub fn tokenize(skel: &Skeleton) -> Result<Vec<u32>, TokenizeError> {
         }
     }
     let q: Vec<[u8; 3]> = skel.bones.iter().map(|b| quantize3(b.head)).collect();
-    let push_q = |out: &mut Vec<u32>, q: [u8; 3]| out.extend(q.iter().map(|&c| c as u32));
+    let mut w = Writer {
+        q: &q,
+        out: vec![BOS, class_token(skel.category.as_deref())],
+        order: Vec::with_capacity(n),
+        cells: HashMap::new(),
+    };
 
-    let mut out = vec![BOS, class_token(skel.category.as_deref())];
     let mut in_template = vec![false; n];
     if skel.template == Some(Template::MixamoBody) {
         if !template::body_matches(skel) {
             return Err(TokenizeError::TemplateMismatch);
         }
-        out.push(MIXAMO_BODY);
-        for i in 0..BODY_BONES {
-            push_q(&mut out, q[i]);
-            in_template[i] = true;
-        }
+        w.out.push(MIXAMO_BODY);
+        (0..BODY_BONES).for_each(|i| w.joint(i));
+        in_template[..BODY_BONES].fill(true);
         for start in hand_blocks(skel, &q) {
-            out.push(MIXAMO_HAND);
-            for i in start..start + HAND_BONES {
-                push_q(&mut out, q[i]);
-                in_template[i] = true;
-            }
+            w.out.push(MIXAMO_HAND);
+            (start..start + HAND_BONES).for_each(|i| w.joint(i));
+            in_template[start..start + HAND_BONES].fill(true);
         }
     }
 
@@ -286,19 +323,51 @@ pub fn tokenize(skel: &Skeleton) -> Result<Vec<u32>, TokenizeError> {
         match bone.parent {
             Some(p) if prev == Some(p) && skel.bones[p].spring == bone.spring => {}
             Some(p) => {
-                out.push(opener);
-                push_q(&mut out, q[p]);
+                w.out.push(opener);
+                w.parent(p);
             }
             None if !any_joint && !bone.spring => {}
-            None => out.extend([opener, BRANCH]),
+            None => w.out.extend([opener, BRANCH]),
         }
-        push_q(&mut out, q[b]);
+        w.joint(b);
         any_joint = true;
         prev = Some(b);
         stack.extend(children[b].iter().rev());
     }
-    out.push(EOS);
-    Ok(out)
+    w.out.push(EOS);
+    Ok((w.out, w.order))
+}
+
+/// Token output that tracks what the decoder will have seen, so branches can name their
+/// parent the way the decoder resolves it.
+struct Writer<'a> {
+    q: &'a [[u8; 3]],
+    out: Vec<u32>,
+    order: Vec<usize>,
+    /// Joints written so far per cell, in writing order, which is the decoder's candidate
+    /// order for a branch parent in that cell.
+    cells: HashMap<[u8; 3], Vec<usize>>,
+}
+
+impl Writer<'_> {
+    fn coords(&mut self, i: usize) {
+        self.out.extend(self.q[i].iter().map(|&c| c as u32));
+    }
+
+    fn joint(&mut self, i: usize) {
+        self.coords(i);
+        self.order.push(i);
+        self.cells.entry(self.q[i]).or_default().push(i);
+    }
+
+    fn parent(&mut self, p: usize) {
+        self.coords(p);
+        let rank = self.cells[&self.q[p]]
+            .iter()
+            .position(|&j| j == p)
+            .expect("the walk writes parents before their children");
+        self.out.extend(std::iter::repeat_n(ALT, rank));
+    }
 }
 
 /// Start indices of the hand blocks to write, in writing order, such that the decoder's
@@ -376,18 +445,80 @@ pub fn detokenize(tokens: &[u32]) -> Result<Skeleton, DetokenizeError> {
     Ok(skel)
 }
 
-/// Checks that `b` (decoded) has the topology of `a` (original): every bone of `b` is matched
-/// to a distinct bone of `a` whose head is within `tol` on every axis (nearest first), and
-/// matched bones have matched parents (or are both roots) and the same spring flag.
-/// For a tokenizer round trip, `tol` is half a bin, `1/256`, plus float slack.
+/// Checks that `b` is `a` re-indexed as [`tokenize_with_order`] reports: bone `k` of `b` is
+/// bone `order[k]` of `a`, with the corresponding parent (or both roots), the same spring
+/// flag, and a head within `tol` on every axis. For a tokenizer round trip, `tol` is half a
+/// bin, `1/256`, plus float slack, and the heads of `a` must lie in [-1, 1].
+pub fn same_topology_in_order(
+    a: &Skeleton,
+    b: &Skeleton,
+    order: &[usize],
+    tol: f32,
+) -> Result<(), String> {
+    let n = a.len();
+    if b.len() != n || order.len() != n {
+        return Err(format!(
+            "{} decoded bones and {} order entries, expected {n}",
+            b.len(),
+            order.len()
+        ));
+    }
+    let mut at = vec![usize::MAX; n];
+    for (k, &i) in order.iter().enumerate() {
+        if i >= n || at[i] != usize::MAX {
+            return Err(format!("order is not a permutation: entry {k} is {i}"));
+        }
+        at[i] = k;
+    }
+    for (k, (&i, d)) in order.iter().zip(&b.bones).enumerate() {
+        let o = &a.bones[i];
+        let want = o.parent.map(|p| at.get(p).copied().unwrap_or(usize::MAX));
+        if d.parent != want {
+            return Err(format!(
+                "decoded bone {k} is original {i} ({}), whose parent {:?} was written as {want:?}, but its parent is {:?}",
+                o.name, o.parent, d.parent
+            ));
+        }
+        if d.spring != o.spring {
+            return Err(format!(
+                "decoded bone {k} has spring={}, original {i} ({}) has {}",
+                d.spring, o.name, o.spring
+            ));
+        }
+        let err = head_gap(d.head, o.head);
+        if err > tol {
+            return Err(format!(
+                "decoded bone {k} at {:?} is {err} from original {i} ({}) at {:?}, more than {tol}",
+                d.head, o.name, o.head
+            ));
+        }
+    }
+    Ok(())
+}
+
+/// Checks that `b` has the topology of `a` when no correspondence is known (say, a prediction
+/// against ground truth): some one-to-one mapping of `b`'s bones onto `a`'s pairs heads within
+/// `tol` on every axis, keeps parents (and roots), and keeps spring flags. Coincident joints
+/// cannot fool it: it decides whether such a mapping exists, rather than committing to the
+/// nearest head. For a tokenizer round trip, prefer [`same_topology_in_order`].
 pub fn same_topology(a: &Skeleton, b: &Skeleton, tol: f32) -> Result<(), String> {
     if a.len() != b.len() {
         return Err(format!("{} bones, expected {}", b.len(), a.len()));
     }
     let n = a.len();
-    let dist = |i: usize, j: usize| (a.bones[i].head - b.bones[j].head).abs().max_element();
-    // Candidates per decoded bone, nearest first; then a maximum bipartite matching, so one
-    // original bone sitting near two decoded ones does not derail the rest.
+    for (name, s) in [("original", a), ("decoded", b)] {
+        if let Some((i, p)) = s
+            .bones
+            .iter()
+            .enumerate()
+            .find_map(|(i, x)| x.parent.filter(|&p| p >= i).map(|p| (i, p)))
+        {
+            return Err(format!(
+                "{name} bone {i} has parent {p}, not an earlier bone"
+            ));
+        }
+    }
+    let dist = |i: usize, j: usize| head_gap(a.bones[i].head, b.bones[j].head);
     let mut cands: Vec<Vec<usize>> = Vec::with_capacity(n);
     for j in 0..n {
         let mut c: Vec<usize> = (0..n).filter(|&i| dist(i, j) <= tol).collect();
@@ -400,55 +531,128 @@ pub fn same_topology(a: &Skeleton, b: &Skeleton, tol: f32) -> Result<(), String>
         }
         cands.push(c);
     }
-    let mut owner: Vec<Option<usize>> = vec![None; n]; // original -> decoded
-    fn augment(
-        j: usize,
-        cands: &[Vec<usize>],
-        owner: &mut [Option<usize>],
-        seen: &mut [bool],
-    ) -> bool {
+    let (ca, cb) = (a.children(), b.children());
+    // fits[j]: the originals whose whole subtree can map onto decoded j's subtree. Children
+    // come after their parents, so a backward sweep has every child's answer ready; each
+    // step is a bipartite matching of children, which settles coincident siblings exactly.
+    let mut fits: Vec<Vec<usize>> = vec![Vec::new(); n];
+    let mut scratch = vec![usize::MAX; n];
+    let mut first_misfit: Option<(usize, String)> = None;
+    for j in (0..n).rev() {
+        let mut why = String::new();
         for &i in &cands[j] {
-            if seen[i] {
+            if a.bones[i].spring != b.bones[j].spring {
+                why = why_not(&why, || {
+                    format!("original {i} has spring={}", a.bones[i].spring)
+                });
+            } else if ca[i].len() != cb[j].len() {
+                why = why_not(&why, || {
+                    format!(
+                        "original {i} ({}) has {} children, not {}",
+                        a.bones[i].name,
+                        ca[i].len(),
+                        cb[j].len()
+                    )
+                });
+            } else if !perfect_matching(&ca[i], &cb[j], &fits, &mut scratch) {
+                why = why_not(&why, || {
+                    format!(
+                        "the children of original {i} ({}) do not match its children",
+                        a.bones[i].name
+                    )
+                });
+            } else {
+                fits[j].push(i);
+            }
+        }
+        if fits[j].is_empty() && first_misfit.is_none() {
+            first_misfit = Some((j, why));
+        }
+    }
+    let roots_a: Vec<usize> = a.roots().collect();
+    let roots_b: Vec<usize> = b.roots().collect();
+    if roots_a.len() == roots_b.len() && perfect_matching(&roots_a, &roots_b, &fits, &mut scratch) {
+        return Ok(());
+    }
+    Err(match first_misfit {
+        Some((j, why)) => format!(
+            "decoded bone {j} ({}) at {:?}: no original bone nearby has its subtree ({why})",
+            b.bones[j].name, b.bones[j].head
+        ),
+        None => format!("roots differ: original {roots_a:?}, decoded {roots_b:?} cannot be paired"),
+    })
+}
+
+/// Largest per-axis distance; infinite when either point has a NaN, which `max_element`
+/// would skip.
+fn head_gap(a: Vec3, b: Vec3) -> f32 {
+    let d = (a - b).abs();
+    if d.is_nan() {
+        f32::INFINITY
+    } else {
+        d.max_element()
+    }
+}
+
+/// Keeps the first reason: it belongs to the nearest candidate.
+fn why_not(so_far: &str, reason: impl FnOnce() -> String) -> String {
+    if so_far.is_empty() {
+        reason()
+    } else {
+        so_far.to_string()
+    }
+}
+
+/// Whether `left` (bones of the original) and `right` (decoded bones) can be paired so that
+/// every decoded bone gets an original listed in its `fits`. `slot` must be all
+/// `usize::MAX` and is left so.
+fn perfect_matching(
+    left: &[usize],
+    right: &[usize],
+    fits: &[Vec<usize>],
+    slot: &mut [usize],
+) -> bool {
+    if left.len() != right.len() {
+        return false;
+    }
+    for (l, &i) in left.iter().enumerate() {
+        slot[i] = l;
+    }
+    let adj: Vec<Vec<usize>> = right
+        .iter()
+        .map(|&j| {
+            fits[j]
+                .iter()
+                .filter_map(|&i| (slot[i] != usize::MAX).then_some(slot[i]))
+                .collect()
+        })
+        .collect();
+    for &i in left {
+        slot[i] = usize::MAX;
+    }
+    // Kuhn's augmenting paths; `owner[l]` is the right index holding left slot `l`.
+    fn augment(r: usize, adj: &[Vec<usize>], owner: &mut [usize], seen: &mut [bool]) -> bool {
+        for &l in &adj[r] {
+            if seen[l] {
                 continue;
             }
-            seen[i] = true;
-            if owner[i].is_none_or(|k| augment(k, cands, owner, seen)) {
-                owner[i] = Some(j);
+            seen[l] = true;
+            if owner[l] == usize::MAX || augment(owner[l], adj, owner, seen) {
+                owner[l] = r;
                 return true;
             }
         }
         false
     }
-    for j in 0..n {
-        let mut seen = vec![false; n];
-        if !augment(j, &cands, &mut owner, &mut seen) {
-            return Err(format!(
-                "decoded bone {j} competes with others for the same original bones"
-            ));
+    let mut owner = vec![usize::MAX; left.len()];
+    let mut seen = vec![false; left.len()];
+    for r in 0..right.len() {
+        seen.fill(false);
+        if !augment(r, &adj, &mut owner, &mut seen) {
+            return false;
         }
     }
-    let mut to_a = vec![0usize; n];
-    for (i, o) in owner.iter().enumerate() {
-        to_a[o.expect("perfect matching")] = i;
-    }
-    for j in 0..n {
-        let i = to_a[j];
-        let want = a.bones[i].parent;
-        let got = b.bones[j].parent.map(|p| to_a[p]);
-        if want != got {
-            return Err(format!(
-                "decoded bone {j} ({}) matches original {i} ({}) whose parent is {:?}, but its parent matches {:?}",
-                b.bones[j].name, a.bones[i].name, want, got
-            ));
-        }
-        if a.bones[i].spring != b.bones[j].spring {
-            return Err(format!(
-                "decoded bone {j} has spring={}, original {i} has {}",
-                b.bones[j].spring, a.bones[i].spring
-            ));
-        }
-    }
-    Ok(())
+    true
 }
 
 #[cfg(test)]
@@ -483,19 +687,16 @@ pub(crate) mod test_support {
         }
     }
 
-    /// A random forest of up to `max_bones` bones with heads in [-1, 1], every head in its
-    /// own quantization cell, random spring flags, and a random (possibly unknown) category.
+    /// A random forest of up to `max_bones` bones with heads in [-1, 1], random spring flags,
+    /// and a random (possibly unknown) category. Some skeletons have every head in its own
+    /// quantization cell; the others put heads in the cell of an earlier joint (its parent,
+    /// a sibling-to-be, anyone), sometimes most of them, as artist rigs do.
     pub fn random_skeleton(rng: &mut Rng, max_bones: usize) -> Skeleton {
         let n = 1 + rng.below(max_bones);
+        let share = [0.0, 0.15, 0.7][rng.below(3)];
         let mut used = std::collections::HashSet::new();
-        let mut bones = Vec::with_capacity(n);
+        let mut bones: Vec<Bone> = Vec::with_capacity(n);
         for i in 0..n {
-            let head = loop {
-                let p = Vec3::new(rng.coord(), rng.coord(), rng.coord());
-                if used.insert(quantize3(p)) {
-                    break p;
-                }
-            };
             let parent = if i == 0 || rng.chance(0.05) {
                 None
             } else if rng.chance(0.6) {
@@ -503,6 +704,28 @@ pub(crate) mod test_support {
             } else {
                 Some(rng.below(i))
             };
+            let head = if i > 0 && rng.chance(share) {
+                let other = match parent {
+                    Some(p) if rng.chance(0.5) => p,
+                    _ => rng.below(i),
+                };
+                let base = bones[other].head;
+                // Anywhere in the same cell, not only the same point.
+                let moved = base + Vec3::new(rng.coord(), rng.coord(), rng.coord()) / 600.0;
+                if quantize3(moved) == quantize3(base) && moved.abs().max_element() <= 1.0 {
+                    moved
+                } else {
+                    base
+                }
+            } else {
+                loop {
+                    let p = Vec3::new(rng.coord(), rng.coord(), rng.coord());
+                    if used.insert(quantize3(p)) {
+                        break p;
+                    }
+                }
+            };
+            used.insert(quantize3(head));
             bones.push(Bone {
                 name: format!("b{i}"),
                 parent,
@@ -554,18 +777,25 @@ mod tests {
         s
     }
 
-    /// tokenize → detokenize keeps topology and joints within half a bin, decodes a valid
-    /// skeleton, and re-tokenizing the decoded skeleton gives the same tokens.
+    /// tokenize → detokenize keeps topology exactly (bone for bone, through the returned
+    /// order) and joints within half a bin, decodes a valid skeleton that the order-free
+    /// check accepts too, and re-tokenizing the decoded skeleton gives the same tokens in
+    /// the same order.
     fn round_trip(s: &Skeleton) -> (Vec<u32>, Skeleton) {
-        let t = tokenize(s).unwrap();
+        let (t, order) = tokenize_with_order(s).unwrap();
+        assert_eq!(tokenize(s).unwrap(), t);
         let d = detokenize(&t).unwrap_or_else(|e| panic!("{e}: {:?}", names(&t)));
         d.validate(usize::MAX).unwrap();
+        same_topology_in_order(s, &d, &order, HALF_BIN)
+            .unwrap_or_else(|e| panic!("{e}\n{:?}", names(&t)));
         same_topology(s, &d, HALF_BIN).unwrap_or_else(|e| panic!("{e}\n{:?}", names(&t)));
         assert_eq!(
             d.category.as_deref(),
             category_of_class_token(class_token(s.category.as_deref()))
         );
-        assert_eq!(tokenize(&d).unwrap(), t, "re-tokenizing is not idempotent");
+        let (again, identity) = tokenize_with_order(&d).unwrap();
+        assert_eq!(again, t, "re-tokenizing is not idempotent");
+        assert!(identity.iter().enumerate().all(|(k, &i)| k == i));
         (t, d)
     }
 
@@ -575,7 +805,7 @@ mod tests {
 
     #[test]
     fn vocabulary_layout_is_stable() {
-        assert_eq!(VOCAB_SIZE, 272);
+        assert_eq!(VOCAB_SIZE, 273);
         assert_eq!(token_name(0), "0");
         assert_eq!(token_name(255), "255");
         assert_eq!(token_name(BOS), "<bos>");
@@ -587,7 +817,10 @@ mod tests {
         assert_eq!(token_name(MIXAMO_HAND), "<mixamo:hand>");
         assert_eq!(token_name(263), "<cls:none>");
         assert_eq!(token_name(271), "<cls:robot_prop>");
-        assert_eq!(token_name(272), "<unk:272>");
+        assert_eq!(token_name(272), "<alt>");
+        assert_eq!(ALT, 272);
+        assert!(!is_class_token(ALT) && !is_coord(ALT));
+        assert_eq!(token_name(273), "<unk:273>");
         let all: std::collections::HashSet<String> =
             (0..VOCAB_SIZE as u32).map(token_name).collect();
         assert_eq!(all.len(), VOCAB_SIZE);
@@ -818,8 +1051,8 @@ mod tests {
     }
 
     #[test]
-    fn coincident_joints_still_decode_to_a_valid_tree() {
-        // Joints 1 and 3 share a cell; 4 branches off 3, but the decoder sees two candidates.
+    fn coincident_joints_round_trip_through_alt() {
+        // Joints 1 and 3 share a cell; 4 and 5 hang off 3, the later-written joint there.
         let s = skel(vec![
             bone(None, [0.0, 0.0, 0.0], false),
             bone(Some(0), [0.0, 0.5, 0.0], false),
@@ -828,35 +1061,119 @@ mod tests {
             bone(Some(3), [0.4, 0.5, 0.0], false),
             bone(Some(3), [0.4, 0.3, 0.0], false),
         ]);
-        let t = tokenize(&s).unwrap();
-        let d = detokenize(&t).unwrap();
-        d.validate(usize::MAX).unwrap();
-        assert_eq!(d.len(), s.len());
-        for b in &d.bones {
-            assert!(s
-                .bones
-                .iter()
-                .any(|o| (o.head - b.head).abs().max_element() <= HALF_BIN));
-        }
-        // Documented limitation: the branches land on the earlier joint in that cell (joint 1).
-        assert!(same_topology(&s, &d, HALF_BIN).is_err());
+        let (t, d) = round_trip(&s);
+        let c = |x: f32| quantize(x);
+        let (z, h) = (c(0.0), c(0.5));
+        // 4 continues 3's chain; 5 names 3's cell, where 1 comes first, so it needs one <alt>.
+        let tail = [BRANCH, z, h, z, ALT, c(0.4), c(0.3), z, EOS];
+        assert_eq!(&t[t.len() - tail.len()..], &tail, "{:?}", names(&t));
+        assert_eq!(d.bones[5].parent, Some(3));
+        assert_eq!(t.iter().filter(|&&x| x == ALT).count(), 1);
+        // The parent written first needs none.
+        let mut first = s.clone();
+        first.bones[5].parent = Some(1);
+        let (t, _) = round_trip(&first);
+        assert!(!t.contains(&ALT));
 
-        let mut rng = Rng::new(99);
-        for _ in 0..200 {
-            let mut s = random_skeleton(&mut rng, 40);
-            let n = s.len();
-            if n > 1 {
-                // Force a few collisions.
-                for _ in 0..3 {
-                    let (a, b) = (rng.below(n), rng.below(n));
-                    s.bones[a].head = s.bones[b].head;
-                }
-            }
-            let t = tokenize(&s).unwrap();
-            let d = detokenize(&t).unwrap();
-            d.validate(usize::MAX).unwrap();
-            assert_eq!(d.len(), n);
+        // Everything in one cell: a root with a chain and branches, ranks up to n - 2.
+        let parents = [None, Some(0), Some(1), Some(0), Some(2), Some(1), Some(5)];
+        let parents = parents.into_iter().chain([3, 0, 4, 8, 10].map(Some));
+        let pile: Vec<Bone> = parents
+            .enumerate()
+            .map(|(i, p)| bone(p, [0.2, 0.2, 0.2], i % 5 == 3))
+            .collect();
+        let (t, _) = round_trip(&skel(pile));
+        assert!(t.windows(3).any(|w| w == [ALT; 3]), "{:?}", names(&t));
+    }
+
+    #[test]
+    fn coincident_template_joints_round_trip() {
+        // Collapse a finger and put a tail on the hips and a bone on the left hand: branches
+        // off those cells must find template joints among extras.
+        let mut m = match_mixamo(&synthetic_mixamo(true, false)).unwrap();
+        let (hips, hand) = (m.bones[0].head, m.bones[LEFT_HAND].head);
+        for k in 0..3 {
+            m.bones[BODY_BONES + 3 + k].head = hand;
         }
+        for b in m.bones.iter_mut().skip(BODY_BONES + HAND_BONES) {
+            if b.name.starts_with("Tail") {
+                b.head = hips;
+            }
+        }
+        m.bones.push(Bone {
+            name: "prop".into(),
+            parent: Some(LEFT_HAND),
+            head: hand,
+            tail: hand,
+            spring: false,
+        });
+        let n = m.len();
+        m.bones.push(Bone {
+            name: "prop_tip".into(),
+            parent: Some(n - 1),
+            head: hand + Vec3::X * 0.3,
+            tail: hand,
+            spring: true,
+        });
+        let (t, _) = round_trip(&m);
+        assert!(t.contains(&ALT), "{:?}", names(&t));
+    }
+
+    #[test]
+    fn random_skeletons_with_coincident_joints_round_trip_exactly() {
+        let mut rng = Rng::new(99);
+        let mut alts = 0;
+        for _ in 0..600 {
+            let mut s = random_skeleton(&mut rng, 60);
+            let n = s.len();
+            // Force a few more collisions, anywhere in the tree.
+            for _ in 0..rng.below(4) {
+                let (a, b) = (rng.below(n), rng.below(n));
+                s.bones[a].head = s.bones[b].head;
+            }
+            let (t, _) = round_trip(&s);
+            alts += t.iter().filter(|&&x| x == ALT).count();
+        }
+        assert!(
+            alts > 500,
+            "only {alts} <alt> tokens: the test lost its collisions"
+        );
+        // Templates with coincident extras.
+        for _ in 0..100 {
+            let mut m = match_mixamo(&synthetic_mixamo(rng.chance(0.5), rng.chance(0.5))).unwrap();
+            let n = m.len();
+            for _ in 0..1 + rng.below(6) {
+                let (a, b) = (rng.below(n), rng.below(n));
+                m.bones[a].head = m.bones[b].head;
+            }
+            round_trip(&m);
+        }
+    }
+
+    #[test]
+    fn same_topology_in_order_notices_differences() {
+        let s = skel(vec![
+            bone(None, [0.0, 0.0, 0.0], false),
+            bone(Some(0), [0.0, 0.5, 0.0], false),
+            bone(Some(0), [0.0, 0.5, 0.0], false),
+        ]);
+        assert!(same_topology_in_order(&s, &s, &[0, 1, 2], 0.0).is_ok());
+        // Bones 1 and 2 are interchangeable.
+        assert!(same_topology_in_order(&s, &s, &[0, 2, 1], 0.0).is_ok());
+        assert!(same_topology_in_order(&s, &s, &[1, 0, 2], 0.0).is_err());
+        assert!(same_topology_in_order(&s, &s, &[0, 1, 1], 0.0).is_err());
+        assert!(same_topology_in_order(&s, &s, &[0, 1], 0.0).is_err());
+        let mut other = s.clone();
+        other.bones[2].parent = Some(1);
+        assert!(same_topology_in_order(&s, &other, &[0, 1, 2], 0.0).is_err());
+        let mut other = s.clone();
+        other.bones[2].head.x = 0.01;
+        assert!(same_topology_in_order(&s, &other, &[0, 1, 2], 0.005).is_err());
+        other.bones[2].head.x = f32::NAN;
+        assert!(same_topology_in_order(&s, &other, &[0, 1, 2], 0.005).is_err());
+        let mut other = s.clone();
+        other.bones[1].spring = true;
+        assert!(same_topology_in_order(&s, &other, &[0, 1, 2], 0.0).is_err());
     }
 
     #[test]
@@ -996,5 +1313,36 @@ mod tests {
         let mut wrong = shuffled.clone();
         wrong.bones[2].parent = Some(0);
         assert!(same_topology(&fork, &wrong, 0.0).is_err());
+
+        // A root and its child within a hair of each other: pairing by nearest head swaps
+        // them, yet a consistent pairing exists.
+        let a = skel(vec![
+            bone(None, [0.0, 0.0, 0.0], false),
+            bone(Some(0), [0.001, 0.0, 0.0], false),
+            bone(Some(1), [0.0, 0.5, 0.0], false),
+            bone(Some(0), [0.5, 0.0, 0.0], false),
+        ]);
+        let mut b = a.clone();
+        b.bones[0].head.x = 0.001;
+        b.bones[1].head.x = 0.0;
+        assert!(same_topology(&a, &b, HALF_BIN).is_ok());
+        // Coincident siblings whose subtrees differ must pair up by subtree.
+        let a = skel(vec![
+            bone(None, [0.0, 0.0, 0.0], false),
+            bone(Some(0), [0.3, 0.3, 0.3], false),
+            bone(Some(0), [0.3, 0.3, 0.3], false),
+            bone(Some(1), [0.5, 0.5, 0.5], false),
+            bone(Some(2), [0.6, 0.6, 0.6], true),
+        ]);
+        let mut b = a.clone();
+        b.bones[3].parent = Some(2);
+        b.bones[4].parent = Some(1);
+        assert!(same_topology(&a, &b, HALF_BIN).is_ok());
+        b.bones[3].parent = Some(1);
+        let err = same_topology(&a, &b, HALF_BIN).unwrap_err();
+        assert!(err.contains("subtree"), "{err}");
+        let mut b = a.clone();
+        b.bones[4].spring = false;
+        assert!(same_topology(&a, &b, HALF_BIN).is_err());
     }
 }
