@@ -18,7 +18,7 @@ import argparse
 import json
 import os
 import sys
-from typing import List, Optional, Sequence
+from typing import Optional, Sequence
 
 import numpy as np
 import torch
@@ -197,7 +197,7 @@ def check(model: M.SkeletonModel, onnx_dir: str, data: Optional[str] = None, ste
         mv = OnnxSkeleton(enc_p, dec_p, threads)
         pv = mv.encode(pts)
         # teacher-forced on the fp32 tokens: logit drift at the same positions
-        _, lv_tf = _teacher_forced(mv, pv, prompts, tc)
+        lv_tf = _teacher_forced(mv, pv, prompts, tc)
         tv, _ = greedy_cached(mv, pv, prompts, steps)
         agree = [int(np.argmax(np.append(tv[j] != tc[j], True))) for j in range(len(prompts))]
         res[v] = {
@@ -218,8 +218,7 @@ def _teacher_forced(m: OnnxSkeleton, prefix, prompts, tokens):
     seqs = [list(p) + tokens[j, :-1].tolist() for j, p in enumerate(prompts)]
     ids, pos, mask = left_pad(seqs, prefix.shape[1])
     logits, _ = m.run_decoder(ids, prefix, pos, mask, m.empty_past(prefix.shape[0]))
-    steps = tokens.shape[1]
-    return None, logits[:, -steps:]
+    return logits[:, -tokens.shape[1]:]
 
 
 def main(argv=None):

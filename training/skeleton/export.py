@@ -10,10 +10,11 @@ from __future__ import annotations
 
 import argparse
 import json
+import logging
 import os
 import sys
 import warnings
-from typing import List, Optional
+from typing import List
 
 import torch
 import torch.nn as nn
@@ -83,6 +84,34 @@ def _metadata(cfg: ModelConfig, part: str) -> dict:
         "max_positions": str(cfg.max_positions),
         "max_tokens": str(cfg.max_tokens),
     }
+
+
+def _rename_dims(path: str, names: dict):
+    """Gives the dynamic dimensions readable names. `names` maps an input/output name to one
+    name (or None to keep) per dimension. Symbols of the dynamo exporter (s12, "s1 + s2")
+    are replaced everywhere they occur, including intermediate value_info."""
+    import re
+
+    import onnx
+
+    m = onnx.load(path)
+    sym = {}
+    for vi in list(m.graph.input) + list(m.graph.output):
+        want = names.get(vi.name)
+        if not want:
+            continue
+        for d, n in zip(vi.type.tensor_type.shape.dim, want):
+            if n is not None and d.dim_param:
+                sym.setdefault(d.dim_param, n)
+                d.dim_param = n
+    single = {k: v for k, v in sym.items() if re.fullmatch(r"s\d+", k)}
+    for vi in m.graph.value_info:
+        for d in vi.type.tensor_type.shape.dim:
+            if d.dim_param in sym:
+                d.dim_param = sym[d.dim_param]
+            elif d.dim_param:
+                d.dim_param = re.sub(r"s\d+", lambda mm: single.get(mm.group(0), mm.group(0)), d.dim_param)
+    onnx.save(m, path)
 
 
 def _set_metadata(path: str, meta: dict):
@@ -160,6 +189,14 @@ def export_decoder(model: SkeletonModel, path: str, method: str = "auto") -> str
         torch.onnx.export(wrapper, args, path, dynamo=False, opset_version=17, input_names=in_names,
                           output_names=out_names, dynamic_axes=axes)
         used = "torchscript"
+    dims = {"input_ids": ["batch", "seq"], "prefix": ["batch", "prefix_len", None],
+            "position_ids": ["batch", "prefix_len_plus_seq"], "attention_mask": ["batch", "total_len"],
+            "logits": ["batch", "seq", None]}
+    for n in in_names[4:]:
+        dims[n] = ["batch", None, "past_len", None]
+    for n in out_names[1:]:
+        dims[n] = ["batch", None, "total_len", None]
+    _rename_dims(path, dims)
     _set_metadata(path, {**_metadata(cfg, "decoder"), "rigserve.exporter": used})
     return used
 
@@ -178,11 +215,18 @@ def to_int8(src: str, dst: str):
     """Dynamic quantization: int8 weights for MatMul/Gemm (activations quantized on the fly)."""
     from onnxruntime.quantization import QuantType, quantize_dynamic
 
-    quantize_dynamic(src, dst, weight_type=QuantType.QInt8, op_types_to_quantize=["MatMul", "Gemm"],
-                     extra_options={"DefaultTensorType": 1})
+    root = logging.getLogger()
+    level = root.level
+    root.setLevel(logging.ERROR)  # silences the "consider pre-processing" advice
+    try:
+        quantize_dynamic(src, dst, weight_type=QuantType.QInt8, op_types_to_quantize=["MatMul", "Gemm"],
+                         extra_options={"DefaultTensorType": 1})
+    finally:
+        root.setLevel(level)
 
 
 def export_all(model: SkeletonModel, out_dir: str, method: str = "auto", variants=("fp16", "int8"), log=print) -> dict:
+    logging.getLogger("torch.onnx").setLevel(logging.ERROR)  # "torchvision is not installed" noise
     os.makedirs(out_dir, exist_ok=True)
     model = model.float().eval()
     enc, dec = os.path.join(out_dir, "encoder.onnx"), os.path.join(out_dir, "decoder.onnx")

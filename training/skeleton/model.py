@@ -13,7 +13,7 @@ All attention uses finite additive masks (-1e9) so that exported graphs never pr
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass
 from typing import List, Optional, Tuple
 
 import torch
@@ -42,7 +42,10 @@ CATEGORIES = [
     "robot_prop",
 ]
 CLS_NONE = CLS_BASE
-VOCAB_SIZE = CLS_BASE + len(CATEGORIES)  # 272
+# `<alt>` (src/rig/tokenizer.rs) picks among earlier joints sharing a branch parent's cell;
+# it was appended after the class tokens, so the vocabulary is 273.
+ALT = CLS_BASE + len(CATEGORIES)  # 272
+VOCAB_SIZE = ALT + 1  # 273
 
 NEG_INF = -1e9
 

@@ -21,7 +21,7 @@ import numpy as np
 import torch
 
 from .data import MixedSampler, SkeletonDataset, iterate_eval
-from .model import ModelConfig, SkeletonModel, loss_fn, tiny_config
+from .model import PAD, ModelConfig, SkeletonModel, loss_fn, tiny_config
 
 
 def parse_args(argv=None):
@@ -38,7 +38,7 @@ def parse_args(argv=None):
     ap.add_argument("--warmup", type=int, default=500)
     ap.add_argument("--weight-decay", type=float, default=0.01)
     ap.add_argument("--clip", type=float, default=1.0)
-    ap.add_argument("--points-min", type=int, default=1024, help="random subset size per step, lower bound")
+    ap.add_argument("--points-min", type=int, default=512, help="random subset size per step, lower bound")
     ap.add_argument("--points-max", type=int, default=2048, help="random subset size per step, upper bound")
     ap.add_argument("--cls-drop", type=float, default=0.3, help="probability of replacing the class token with <cls:none>")
     ap.add_argument("--precision", choices=["auto", "bf16", "fp32"], default="auto",
@@ -207,7 +207,7 @@ def main(argv=None):
         opt.step()
         step += 1
         win_steps += 1
-        win_tokens += int((ids != 258).sum())
+        win_tokens += int((ids != PAD).sum())
         win_loss += float(lsum.detach())
         win_cnt += int(cnt)
 

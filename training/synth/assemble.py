@@ -122,9 +122,8 @@ def joint_world_rotations(rig: Rig, enc: Encoding, rng: np.random.Generator) -> 
 def pick_level(rig: Rig, target: int, ref_r: float, flat: bool = False) -> int:
     est = []
     for lv in range(len(LEVELS)):
-        # Flat shading splits every triangle's corners: about six vertices per smooth one.
-        est.append(sum(shapes.vertex_estimate(p, *part_res(p, lv, ref_r)) * (6 if flat and p.kind != "sheet" else 1)
-                       for p in rig.parts))
+        count = shapes.flat_vertex_estimate if flat else shapes.vertex_estimate
+        est.append(sum(count(p, *part_res(p, lv, ref_r)) for p in rig.parts))
     best = 0
     for lv, e in enumerate(est):
         if e <= target:
@@ -285,6 +284,7 @@ def encode(rig: Rig, rng: np.random.Generator) -> tuple[bytes, dict]:
         nodes.append({"name": name, "mesh": len(meshes) - 1, "skin": 0})
 
     # Unskinned accessories: a node under the bone, vertices in that node's frame.
+    prop_count: dict[int, int] = {}
     for p, pos, nrm, tris, _, _ in attached:
         j = p.bone
         center = pos.mean(0)
@@ -306,7 +306,9 @@ def encode(rig: Rig, rng: np.random.Generator) -> tuple[bytes, dict]:
         }
         meshes.append({"name": f"acc_{len(meshes)}", "primitives": [prim]})
         acc_node = len(nodes)
-        nodes.append({"name": f"{rig.names[j]}_prop", "mesh": len(meshes) - 1, "translation": [float(x) for x in t_local]})
+        prop_count[j] = prop_count.get(j, 0) + 1
+        suffix = "" if prop_count[j] == 1 else f"_{prop_count[j]}"
+        nodes.append({"name": f"{rig.names[j]}_prop{suffix}", "mesh": len(meshes) - 1, "translation": [float(x) for x in t_local]})
         nodes[joint_node[j]].setdefault("children", []).append(acc_node)
 
     roots = []

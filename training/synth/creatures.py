@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from .naming import Namer
-from .rig import MAX_BONES, X, Y, Z, Rig, add_chain, chain_points, lerp, mirror, perp, rot, unit, v3
+from .rig import MAX_BONES, X, Y, Z, Rig, add_chain, chain_points, lerp, perp, rot, unit, v3
 
 SIDES = (("L", 1.0), ("R", -1.0))
 
@@ -293,7 +293,9 @@ def bird_flyer(rng: np.random.Generator) -> Rig:
         leg = _leg(rig, body[0], pts, namer, "leg", s, r * 0.12, r * 0.06, mat=3)
         if rng.random() < 0.4 and rig.room(3):
             for t, ang in enumerate((-30, 0, 30)):
-                tt = rig.bone(namer("toe", s, t + 1), leg[-1], ankle, ankle + rot(Y, ang) @ Z * L * 0.15 - Y * leg_h * 0.05)
+                d = rot(Y, ang) @ Z
+                # Toes start just off the ankle: a joint on top of its parent has no direction.
+                tt = rig.bone(namer("toe", s, t + 1), leg[-1], ankle + d * L * 0.03, ankle + d * L * 0.15 - Y * leg_h * 0.05)
                 rig.part(tt, "capsule", rig.heads[tt], rig.tails[tt], r * 0.04, mat=3)
     # Tail feathers
     tail0 = c - axis * L * 0.45
@@ -467,8 +469,9 @@ def fish_snake_tail(rng: np.random.Generator) -> Rig:
         pts = chain_points(v3(0, H * 0.8, 0), v3(0, -1, 0.2), H, n, bend_axis=X, bend_deg=-300, taper=0.9)
         spine = add_chain(rig, -1, pts, [namer("spine", None, k + 1) for k in range(n)],
                           radii=_radii(r * 1.2, r * 0.3, n), flat=0.8, side=X)
-        head = rig.bone(namer("head"), spine[0], pts[0], pts[0] + v3(0, 0.3, 1) * H * 0.25)
-        rig.part(head, "cone", pts[0], rig.tails[head], r * 1.1, r * 0.3, flat=0.7, side=X)
+        h0 = pts[0] + v3(0, 0.5, 0.3) * H * 0.06
+        head = rig.bone(namer("head"), spine[0], h0, h0 + v3(0, 0.3, 1) * H * 0.25)
+        rig.part(head, "cone", h0, rig.tails[head], r * 1.1, r * 0.3, flat=0.7, side=X)
         return rig
     # Fish-like: body chain along -Z from the head.
     L = {"whale": U(4, 15), "dolphin": U(1.5, 3), "shark": U(1.5, 5), "tadpole": U(0.02, 0.08), "fish": np.exp(U(np.log(0.05), np.log(2.0)))}[kind]
@@ -666,7 +669,7 @@ def other_creature(rng: np.random.Generator) -> Rig:
         else:  # ghost: body tapering into a tail chain
             rig.part(body, "ellipsoid", c - Y * r * 0.4, c + Y * r, r, flat=0.9, side=X)
             n = int(rng.integers(2, 5))
-            tp = chain_points(c - Y * r * 0.5, v3(0, -1, -0.5), S * 0.6, n, bend_axis=X, bend_deg=U(-60, 60))
+            tp = chain_points(c - Y * r * 0.8, v3(0, -1, -0.5), S * 0.6, n, bend_axis=X, bend_deg=U(-60, 60))
             for p in tp:
                 p[1] = max(p[1], 0.02 * S)
             _leg(rig, body, tp, namer, "tail", None, r * 0.9, r * 0.1, kind="capsule")
@@ -684,6 +687,8 @@ def other_creature(rng: np.random.Generator) -> Rig:
         if rng.random() < 0.6:
             for s, sx in SIDES:
                 e = c + v3(sx * r * 0.35, r * 0.35, r * 0.9)
+                if kind == "snowman":
+                    e = rig.heads[snow_head] + v3(sx * r * 0.15, r * 0.45, r * 0.38)
                 rig.part(body if kind != "snowman" else snow_head, "ellipsoid", e, e + Z * r * 0.12, r * 0.12, rigid=True, mat=2, group="acc")
         return rig
     raise AssertionError(kind)

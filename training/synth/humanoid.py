@@ -137,11 +137,22 @@ def finger_points(J, side: str, hand_len: float, n_seg: int, rng, fingers: list[
 
 
 def _perturb(rig: Rig, rng, sigma: float, start: int = 1):
+    """Nudges joints (and the shapes hanging off them) so no two rest poses are identical."""
+    moved = {}
     for i in range(start, len(rig)):
         d = rng.normal(0, sigma, 3)
+        moved[i] = d
         rig.heads[i] = rig.heads[i] + d
         if rig.tails[i] is not None:
             rig.tails[i] = rig.tails[i] + d
+    for p in rig.parts:
+        d = moved.get(p.bone)
+        if d is None:
+            continue
+        p.a = p.a + d
+        p.b = p.b + d
+        if p.grid is not None:
+            p.grid = p.grid + d
 
 
 def build_body(rig: Rig, rng: np.random.Generator, P: dict, names: HumanoidNames, opts: dict) -> dict:
@@ -234,6 +245,8 @@ def body_shapes(rig: Rig, rng, P: dict, J: dict, style: str, fingers: list[int],
         rig.part(mid, "ellipsoid", hips - Y * pelvis_h * 0.2, top + Y * P["torso"] * 0.05, P["chest_w"] * 1.05 * t,
                  P["chest_w"] * 1.1 * t, flat=rng.uniform(0.55, 0.8), side=X, cands=cands)
     else:
+        torso_kind = str(rng.choice(["capsule", "ellipsoid", "cyl"]))
+        torso_flat = rng.uniform(0.55, 0.8)
         for k, b in enumerate(spine_ids):
             a = rig.heads[b]
             e = rig.heads[spine_ids[k + 1]] if k + 1 < ns else top
@@ -242,7 +255,14 @@ def body_shapes(rig: Rig, rng, P: dict, J: dict, style: str, fingers: list[int],
             r1 = lerp(P["waist_w"], P["chest_w"], f1) * t
             if k == ns - 1:
                 r1 *= rng.uniform(0.7, 0.95)
-            rig.part(b, kind(str(rng.choice(["capsule", "ellipsoid", "cyl"]))), a, e, r0, r1, flat=rng.uniform(0.55, 0.8), side=X)
+            sk = kind(torso_kind)
+            if sk == "ellipsoid":
+                # Ellipsoids pinch to points at their ends; overlap neighbours so the torso
+                # reads as one body rather than a stack of lenses.
+                d = e - a
+                a, e = a - d * 0.45, e + d * 0.45
+                r0 = r1 = max(r0, r1)
+            rig.part(b, sk, a, e, r0, r1, flat=torso_flat, side=X)
     neck_r = H * rng.uniform(0.022, 0.04) * t
     if "neck" in B:
         rig.part(B["neck"], kind("cyl"), rig.heads[B["neck"]] - Y * neck_r * 0.5, rig.heads[B["head"]] + Y * neck_r * 0.5, neck_r)
@@ -413,10 +433,7 @@ def add_clothes(rig: Rig, rng, B: dict, P: dict):
     if rng.random() < 0.3:  # boots
         for s in "LR":
             k, f = rig.heads[B[f"leg_{s}"]], rig.heads[B[f"foot_{s}"]]
-            rig.part(B[f"leg_{s}"], "cyl", lerp(k, f, 0.4), f - Y * J_ANKLE_PAD * H, H * 0.045 * t, H * 0.04 * t, mat=1, group="cloth")
-
-
-J_ANKLE_PAD = 0.01
+            rig.part(B[f"leg_{s}"], "cyl", lerp(k, f, 0.4), f - Y * 0.01 * H, H * 0.045 * t, H * 0.04 * t, mat=1, group="cloth")
 
 
 def humanoid(rng: np.random.Generator) -> Rig:

@@ -104,7 +104,7 @@ def chest(rng, rig, namer):
     root = -1
     if rng.random() < 0.5:
         root = rig.bone(namer("root"), -1, v3(0, 0, 0), Y * h * 0.5)
-    base = rig.bone(namer("base"), root, v3(0, 0, 0), Y * h)
+    base = rig.bone(namer("base"), root, v3(0, 0, 0) if root < 0 else Y * h * 0.2, Y * h)
     _box(rig, base, v3(0, 0, 0), v3(0, h, 0), w / 2, flat=d / w)
     hinge = v3(0, h, -d / 2)
     lid = rig.bone(namer("lid"), base, hinge, hinge + Z * d)
@@ -265,7 +265,7 @@ def drone(rng, rig, namer):
     for k in range(n):
         ang = 2 * np.pi * (k + 0.5) / n
         out = v3(np.cos(ang), 0, np.sin(ang))
-        a = rig.bone(namer("arm", None, k + 1), body, Y * s * 0.2, Y * s * 0.2 + out * s * 0.6)
+        a = rig.bone(namer("arm", None, k + 1), body, Y * s * 0.2 + out * s * 0.15, Y * s * 0.2 + out * s * 0.6)
         _box(rig, a, rig.heads[a], rig.tails[a], s * 0.03, side=Y)
         p = rig.tails[a] + Y * s * 0.05
         r = rig.bone(namer("propeller", None, k + 1), a, p, p + Y * s * 0.05)

@@ -228,3 +228,13 @@ def vertex_estimate(p: Part, n: int, rings: int, box_k: int, sheet_sub: int) -> 
     if p.kind == "ellipsoid":
         return n * (max(3, rings) - 1) + 2
     return n * (max(2, rings // 2) + 2) + 2
+
+
+def flat_vertex_estimate(p: Part, n: int, rings: int, box_k: int, sheet_sub: int) -> int:
+    """Vertices once every triangle gets its own corners (flat shading; sheets stay smooth)."""
+    if p.kind == "sheet":
+        return vertex_estimate(p, n, rings, box_k, sheet_sub)
+    if p.kind == "box":
+        return 3 * 12 * box_k * box_k
+    # A closed triangulated surface has about two triangles per vertex.
+    return 3 * 2 * vertex_estimate(p, n, rings, box_k, sheet_sub)

@@ -1,0 +1,141 @@
+"""Export contract tests on a tiny random model (d=64, 2 layers); under a minute on 2 cores.
+
+    python -m pytest training/skeleton/test_export.py     # or, without pytest:
+    python -m training.skeleton.test_export
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+
+import numpy as np
+import torch
+
+from . import model as M
+from .check_export import OnnxSkeleton, check, greedy_cached, left_pad
+from .export import export_all
+
+_CACHE = {}
+
+
+def _exported():
+    """Exports the tiny model once per process (fp32 + fp16 + int8)."""
+    if "dir" not in _CACHE:
+        torch.manual_seed(0)
+        torch.set_num_threads(2)
+        model = M.SkeletonModel(M.tiny_config(d_model=64, dec_layers=2)).eval()
+        d = tempfile.mkdtemp(prefix="skel_onnx_")
+        _CACHE["info"] = export_all(model, d, log=lambda *_: None)
+        _CACHE["dir"], _CACHE["model"] = d, model
+    return _CACHE["model"], _CACHE["dir"]
+
+
+def test_cached_path_matches_training_path():
+    torch.manual_seed(1)
+    model = M.SkeletonModel(M.tiny_config()).eval()
+    pts = torch.randn(2, 100, 6)
+    ids = torch.tensor([[M.BOS, M.CLS_NONE, 10, 20, 30, M.EOS], [M.BOS, M.CLS_BASE + 1, 5, 6, 7, 8]])
+    with torch.no_grad():
+        ref = model(pts, ids)
+        prefix = model.encoder(pts)
+        L = prefix.shape[1]
+        past = [(torch.zeros(2, 4, 0, 16), torch.zeros(2, 4, 0, 16)) for _ in model.decoder.layers]
+        pos = torch.arange(L + 3).repeat(2, 1)
+        mask = torch.ones(2, L + 3, dtype=torch.int64)
+        lg, past = model.decoder.forward_cached(ids[:, :3], prefix, pos, mask, past)
+        outs = [lg]
+        for t in range(3, 6):
+            mask = torch.ones(2, L + t + 1, dtype=torch.int64)
+            lg, past = model.decoder.forward_cached(ids[:, t:t + 1], prefix[:, :0], torch.full((2, 1), L + t), mask, past)
+            outs.append(lg)
+    assert torch.allclose(torch.cat(outs, 1), ref, atol=1e-5)
+
+
+def test_encoder_is_permutation_invariant():
+    torch.manual_seed(2)
+    model = M.SkeletonModel(M.tiny_config()).eval()
+    pts = torch.randn(1, 300, 6)
+    with torch.no_grad():
+        a = model.encoder(pts)
+        b = model.encoder(pts[:, torch.randperm(300)])
+    assert torch.allclose(a, b, atol=1e-5)
+
+
+def test_export_contract_io():
+    model, d = _exported()
+    m = OnnxSkeleton(os.path.join(d, "encoder.onnx"), os.path.join(d, "decoder.onnx"))
+    cfg = model.cfg
+    assert [i.name for i in m.enc.get_inputs()] == ["points"]
+    assert [o.name for o in m.enc.get_outputs()] == ["prefix"]
+    names = [i.name for i in m.dec.get_inputs()]
+    assert names[:4] == ["input_ids", "prefix", "position_ids", "attention_mask"]
+    assert names[4:] == [f"past_key_values.{i}.{kv}" for i in range(cfg.dec_layers) for kv in ("key", "value")]
+    outs = [o.name for o in m.dec.get_outputs()]
+    assert outs == ["logits"] + [f"present.{i}.{kv}" for i in range(cfg.dec_layers) for kv in ("key", "value")]
+    meta = m.dec.get_modelmeta().custom_metadata_map
+    assert int(meta["n_latents"]) == cfg.n_latents and int(meta["vocab_size"]) == M.VOCAB_SIZE
+    # shapes: batch 3, 50 points; prefill with 2 tokens then a decode step
+    pts = np.random.default_rng(0).normal(size=(3, 50, 6)).astype(np.float32)
+    prefix = m.encode(pts)
+    assert prefix.shape == (3, cfg.n_latents, cfg.d_model)
+    ids, pos, mask = left_pad([[M.BOS, M.CLS_NONE]] * 3, cfg.n_latents)
+    logits, present = m.run_decoder(ids, prefix, pos, mask, m.empty_past(3))
+    assert logits.shape == (3, 2, M.VOCAB_SIZE)
+    assert present[0].shape == (3, cfg.n_heads, cfg.n_latents + 2, cfg.head_dim)
+    mask = np.concatenate([mask, np.ones((3, 1), np.int64)], 1)
+    logits, present = m.run_decoder(np.full((3, 1), 7), prefix[:, :0], np.full((3, 1), cfg.n_latents + 2), mask, present)
+    assert logits.shape == (3, 1, M.VOCAB_SIZE)
+    assert present[-1].shape == (3, cfg.n_heads, cfg.n_latents + 3, cfg.head_dim)
+    assert np.isfinite(logits).all()
+
+
+def test_export_matches_torch_and_cache():
+    model, d = _exported()
+    res = check(model, d, steps=10, n_points=256)
+    assert res["encoder_max_abs_diff"] <= 1e-4, res
+    assert res["cache_vs_recompute_same_tokens"], res
+    assert res["cache_vs_recompute_max_logit_diff"] <= 1e-3, res
+    assert res["cache_vs_torch_max_logit_diff"] <= 1e-3, res
+    assert res["torch_greedy_agrees"], res
+    assert res["ok"]
+    for v in ("fp16", "int8"):
+        assert v in res and np.isfinite(res[v]["logits_max_abs_diff"]), res
+
+
+def test_left_padding_does_not_change_results():
+    """An item decoded alone equals the same item decoded left-padded next to a longer one."""
+    model, d = _exported()
+    m = OnnxSkeleton(os.path.join(d, "encoder.onnx"), os.path.join(d, "decoder.onnx"))
+    pts = np.random.default_rng(3).normal(size=(2, 128, 6)).astype(np.float32)
+    prefix = m.encode(pts)
+    short, long = [M.BOS, M.CLS_NONE], [M.BOS, M.CLS_BASE + 2, 100, 101, 102, M.BRANCH]
+    t_batch, l_batch = greedy_cached(m, prefix, [short, long], 6)
+    t_alone, l_alone = greedy_cached(m, prefix[:1], [short], 6)
+    assert (t_batch[0] == t_alone[0]).all()
+    assert np.abs(l_batch[0] - l_alone[0]).max() < 1e-4
+
+
+def test_quantized_files_are_smaller():
+    _, d = _exported()
+    for n in ("encoder", "decoder"):
+        base = os.path.getsize(os.path.join(d, f"{n}.onnx"))
+        assert os.path.getsize(os.path.join(d, f"{n}.fp16.onnx")) < base
+        assert os.path.getsize(os.path.join(d, f"{n}.int8.onnx")) < base
+
+
+if __name__ == "__main__":
+    import sys
+    import time
+
+    failed = 0
+    for name, fn in list(globals().items()):
+        if name.startswith("test_") and callable(fn):
+            t = time.time()
+            try:
+                fn()
+                print(f"PASS {name} ({time.time() - t:.1f}s)")
+            except Exception as e:  # noqa: BLE001
+                failed += 1
+                print(f"FAIL {name}: {type(e).__name__}: {e}")
+    sys.exit(1 if failed else 0)
