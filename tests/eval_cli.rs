@@ -119,3 +119,26 @@ fn a_perturbed_copy_reports_the_expected_error() {
     assert_eq!(m[2]["error"]["code"], "missing");
     assert!((f(&r["overall"]["valid_fraction"]) - 2.0 / 3.0).abs() < 1e-6);
 }
+
+#[test]
+fn the_category_medoid_baseline_scores_every_dev_mesh() {
+    let Some(dir) = common::shared_rigs() else {
+        return;
+    };
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("b.json");
+    let status = Command::new(env!("CARGO_BIN_EXE_rigserve"))
+        .args(["eval", "--baseline", "--split", "dev", "--dataset"])
+        .arg(&dir)
+        .arg("--out")
+        .arg(&out)
+        .status()
+        .unwrap();
+    assert!(status.success());
+    let r: Value = serde_json::from_slice(&std::fs::read(&out).unwrap()).unwrap();
+    assert_eq!(r["overall"]["count"], 23);
+    assert_eq!(r["overall"]["valid_fraction"], 1.0);
+    let j2j = r["overall"]["skeleton"]["cd_j2j"].as_f64().unwrap();
+    // A stretched stand-in skeleton is roughly placed, never exact.
+    assert!(j2j > 0.01 && j2j < 0.5, "{j2j}");
+}

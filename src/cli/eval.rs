@@ -1,20 +1,33 @@
 use anyhow::Context;
 use rigserve::mesh::Limits;
-use std::path::Path;
+use std::path::{Path, PathBuf};
+
+/// What produces the rigs being scored.
+pub enum Source {
+    /// Rigged files already written by some tool.
+    Pred(PathBuf),
+    /// The category-medoid baseline from this training split.
+    Baseline(String),
+    /// rigserve's shipped models.
+    Model,
+}
 
 pub fn run(
     dataset: &Path,
     split: Option<&str>,
-    pred: Option<&Path>,
+    source: Source,
     out: &Path,
     limits: &Limits,
 ) -> anyhow::Result<()> {
-    let Some(pred) = pred else {
-        anyhow::bail!(
-            "eval needs --pred DIR until the shipped models land (model-driven evaluation)"
-        );
+    let report = match source {
+        Source::Pred(pred) => rigserve::eval::eval_pred(dataset, split, &pred, limits)?,
+        Source::Baseline(train) => rigserve::eval::eval_baseline(dataset, split, &train, limits)?,
+        Source::Model => {
+            anyhow::bail!(
+                "model-driven evaluation needs the shipped models; use --pred DIR or --baseline"
+            )
+        }
     };
-    let report = rigserve::eval::eval_pred(dataset, split, pred, limits)?;
     std::fs::write(out, serde_json::to_vec_pretty(&report)?)
         .with_context(|| format!("writing {}", out.display()))?;
     let o = &report.overall;

@@ -1,8 +1,10 @@
 //! Subcommands. Each one is a thin shell over the library, so tests drive the same code.
 
+mod bench;
 mod dataset;
 mod eval;
 mod inspect;
+mod rig;
 
 use clap::{Parser, Subcommand};
 use rigserve::mesh::Limits;
@@ -63,8 +65,14 @@ pub enum Command {
         #[arg(long)]
         split: Option<String>,
         /// Folder of rigged GLBs named like the data set's files, to score.
-        #[arg(long)]
+        #[arg(long, conflicts_with = "baseline")]
         pred: Option<PathBuf>,
+        /// Score the trivial baseline instead: each category's medoid training skeleton
+        /// (from `--train-split`) stretched onto the mesh's bounding box.
+        #[arg(long)]
+        baseline: bool,
+        #[arg(long, default_value = "train")]
+        train_split: String,
         /// Where to write the report.
         #[arg(long)]
         out: PathBuf,
@@ -73,6 +81,11 @@ pub enum Command {
     },
     /// Writes training arrays and token sequences from rigged meshes (see `training/`).
     Dataset(DatasetArgs),
+    /// Predicts a skeleton for a mesh with the skeleton model.
+    Rig(rig::RigArgs),
+    /// Measures model throughput and latency.
+    #[command(subcommand)]
+    Bench(bench::BenchCommand),
 }
 
 #[derive(clap::Args, Debug)]
@@ -119,18 +132,23 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
                 &a.limits.limits(),
             )
         }
+        Command::Rig(a) => rig::run(a),
+        Command::Bench(c) => bench::run(c),
         Command::Eval {
             dataset,
             split,
             pred,
+            baseline,
+            train_split,
             out,
             limits,
-        } => eval::run(
-            &dataset,
-            split.as_deref(),
-            pred.as_deref(),
-            &out,
-            &limits.limits(),
-        ),
+        } => {
+            let source = match (pred, baseline) {
+                (_, true) => eval::Source::Baseline(train_split),
+                (Some(p), false) => eval::Source::Pred(p),
+                (None, false) => eval::Source::Model,
+            };
+            eval::run(&dataset, split.as_deref(), source, &out, &limits.limits())
+        }
     }
 }

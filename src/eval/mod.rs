@@ -1,6 +1,8 @@
 //! Scores rigged files against a data set's artist rigs: the figures every model change
 //! is judged by, computed by the same code whichever tool produced the rig.
 
+pub mod baseline;
+
 use crate::mesh::{self, Limits};
 use crate::rig::groundtruth::{self, GroundTruth};
 use crate::rig::metrics::{score_skeleton, score_skin, Frame, SkeletonScores, SkinScores};
@@ -265,4 +267,32 @@ pub fn eval_pred(
         models.push(m);
     }
     Ok(summarize(dataset, split, "pred", models))
+}
+
+/// `rigserve eval --baseline`: the category-medoid skeleton of the `train_split` rigs,
+/// stretched onto each mesh of `split` (skeleton metrics only).
+pub fn eval_baseline(
+    dataset: &Path,
+    split: Option<&str>,
+    train_split: &str,
+    limits: &Limits,
+) -> Result<Report, EvalError> {
+    let entries = read_manifest(dataset)?;
+    let train: Vec<ManifestEntry> = entries
+        .iter()
+        .filter(|e| e.split.as_deref() == Some(train_split))
+        .cloned()
+        .collect();
+    let medoids = baseline::category_medoids(dataset, &train, limits);
+    let models = entries
+        .iter()
+        .filter(|e| split.is_none() || e.split.as_deref() == split)
+        .map(|e| baseline::score_baseline(dataset, e, &medoids, limits))
+        .collect();
+    Ok(summarize(
+        dataset,
+        split,
+        "baseline_category_medoid",
+        models,
+    ))
 }

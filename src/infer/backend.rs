@@ -1,0 +1,781 @@
+//! The inference thread: owns the model, takes requests over a channel, and decodes them
+//! with continuous batching.
+//!
+//! Each loop iteration
+//! 1. takes every request that has arrived (blocking only when there is nothing to do);
+//! 2. admits waiting requests up to `max_batch`: encodes their points (each distinct point
+//!    set once), prefills them as a batch of their own, samples their first token, and
+//!    appends their cache rows to the running batch (left-padded to a common length);
+//! 3. runs one decode step for the whole running batch;
+//! 4. samples each item's next token under its own grammar and random stream;
+//! 5. replies to finished items (`<eos>`, length) and drops their rows.
+//!
+//! The cache is copied only in 2 and 5, when membership changes. Callers get a [`Pending`]
+//! (a one-shot reply channel); dropping it cancels the request at the next step.
+
+use super::kv::KvCache;
+use super::model::{ModelInfo, SkeletonModel};
+use super::sampling::{completion_cost, constrain_logits, Sampler, SamplingParams};
+use super::InferError;
+use crate::rig::grammar::Grammar;
+use ndarray::{Array2, Array3, ArrayView1, Axis};
+use std::collections::VecDeque;
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::mpsc::{channel, Receiver, RecvError, Sender};
+use std::sync::Arc;
+use std::time::Instant;
+
+/// One sequence to generate.
+#[derive(Clone, Debug)]
+pub struct SkeletonRequest {
+    /// Surface samples `x y z nx ny nz`, normalized as `rigserve dataset` does. Shared so
+    /// best-of-N candidates of one mesh hold (and encode) one copy.
+    pub points: Arc<[[f32; 6]]>,
+    /// `<bos> <cls:…>` and optionally the tokens of bones to keep (no `<eos>`).
+    pub prompt: Vec<u32>,
+    pub sampling: SamplingParams,
+    pub max_bones: usize,
+    /// Longest sequence, prompt included; 0, or more than the model allows, means the
+    /// model's `max_tokens`.
+    pub max_tokens: usize,
+    /// Benchmarks only: never choose `<eos>` (while anything else is allowed), so the item
+    /// runs to exactly `max_tokens`. The result may then not detokenize.
+    pub ignore_eos: bool,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum FinishReason {
+    Eos,
+    /// Reached `max_tokens` (only with `ignore_eos`: the grammar budget otherwise ends
+    /// every sequence with `<eos>` in time).
+    Length,
+}
+
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Generation {
+    /// The whole sequence: prompt, then generated tokens.
+    pub tokens: Vec<u32>,
+    pub prompt_len: usize,
+    pub finish: FinishReason,
+}
+
+impl Generation {
+    pub fn generated(&self) -> &[u32] {
+        &self.tokens[self.prompt_len..]
+    }
+}
+
+#[derive(Clone, Debug)]
+pub struct BackendConfig {
+    /// Most sequences decoded together; more wait in the queue.
+    pub max_batch: usize,
+    /// `false` recomputes every sequence in full at each step (the baseline the cache is
+    /// benchmarked and tested against).
+    pub kv_cache: bool,
+}
+
+impl Default for BackendConfig {
+    fn default() -> Self {
+        BackendConfig {
+            max_batch: 32,
+            kv_cache: true,
+        }
+    }
+}
+
+/// Counters the worker updates; read them with [`Metrics::snapshot`].
+#[derive(Debug, Default)]
+pub struct Metrics {
+    requests: AtomicU64,
+    completed: AtomicU64,
+    failed: AtomicU64,
+    cancelled: AtomicU64,
+    generated_tokens: AtomicU64,
+    decode_steps: AtomicU64,
+    decode_rows: AtomicU64,
+    decode_ns: AtomicU64,
+    prefill_calls: AtomicU64,
+    prefill_rows: AtomicU64,
+    prefill_ns: AtomicU64,
+    encode_calls: AtomicU64,
+    encode_rows: AtomicU64,
+    encode_ns: AtomicU64,
+    cache_rebuilds: AtomicU64,
+    cache_ns: AtomicU64,
+    running: AtomicU64,
+    waiting: AtomicU64,
+    max_batch_seen: AtomicU64,
+}
+
+/// A copy of the counters at one moment. Durations in nanoseconds.
+#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize)]
+pub struct MetricsSnapshot {
+    pub requests: u64,
+    pub completed: u64,
+    pub failed: u64,
+    pub cancelled: u64,
+    pub generated_tokens: u64,
+    /// Decoder calls of the running batch (one new token per row).
+    pub decode_steps: u64,
+    /// Sum of the batch sizes of those calls.
+    pub decode_rows: u64,
+    pub decode_ns: u64,
+    pub prefill_calls: u64,
+    pub prefill_rows: u64,
+    pub prefill_ns: u64,
+    pub encode_calls: u64,
+    pub encode_rows: u64,
+    pub encode_ns: u64,
+    /// Cache copies for membership changes (joins and leaves).
+    pub cache_rebuilds: u64,
+    pub cache_ns: u64,
+    /// Gauges: items decoding and waiting now.
+    pub running: u64,
+    pub waiting: u64,
+    pub max_batch_seen: u64,
+}
+
+impl Metrics {
+    pub fn snapshot(&self) -> MetricsSnapshot {
+        let g = |a: &AtomicU64| a.load(Ordering::Relaxed);
+        MetricsSnapshot {
+            requests: g(&self.requests),
+            completed: g(&self.completed),
+            failed: g(&self.failed),
+            cancelled: g(&self.cancelled),
+            generated_tokens: g(&self.generated_tokens),
+            decode_steps: g(&self.decode_steps),
+            decode_rows: g(&self.decode_rows),
+            decode_ns: g(&self.decode_ns),
+            prefill_calls: g(&self.prefill_calls),
+            prefill_rows: g(&self.prefill_rows),
+            prefill_ns: g(&self.prefill_ns),
+            encode_calls: g(&self.encode_calls),
+            encode_rows: g(&self.encode_rows),
+            encode_ns: g(&self.encode_ns),
+            cache_rebuilds: g(&self.cache_rebuilds),
+            cache_ns: g(&self.cache_ns),
+            running: g(&self.running),
+            waiting: g(&self.waiting),
+            max_batch_seen: g(&self.max_batch_seen),
+        }
+    }
+
+    fn add(a: &AtomicU64, v: u64) {
+        a.fetch_add(v, Ordering::Relaxed);
+    }
+
+    fn add_time(a: &AtomicU64, since: Instant) {
+        a.fetch_add(since.elapsed().as_nanos() as u64, Ordering::Relaxed);
+    }
+}
+
+impl MetricsSnapshot {
+    /// Counters accumulated since `earlier` (gauges are kept as they are now).
+    pub fn since(&self, earlier: &MetricsSnapshot) -> MetricsSnapshot {
+        let d = |a: u64, b: u64| a.saturating_sub(b);
+        MetricsSnapshot {
+            requests: d(self.requests, earlier.requests),
+            completed: d(self.completed, earlier.completed),
+            failed: d(self.failed, earlier.failed),
+            cancelled: d(self.cancelled, earlier.cancelled),
+            generated_tokens: d(self.generated_tokens, earlier.generated_tokens),
+            decode_steps: d(self.decode_steps, earlier.decode_steps),
+            decode_rows: d(self.decode_rows, earlier.decode_rows),
+            decode_ns: d(self.decode_ns, earlier.decode_ns),
+            prefill_calls: d(self.prefill_calls, earlier.prefill_calls),
+            prefill_rows: d(self.prefill_rows, earlier.prefill_rows),
+            prefill_ns: d(self.prefill_ns, earlier.prefill_ns),
+            encode_calls: d(self.encode_calls, earlier.encode_calls),
+            encode_rows: d(self.encode_rows, earlier.encode_rows),
+            encode_ns: d(self.encode_ns, earlier.encode_ns),
+            cache_rebuilds: d(self.cache_rebuilds, earlier.cache_rebuilds),
+            cache_ns: d(self.cache_ns, earlier.cache_ns),
+            ..*self
+        }
+    }
+
+    /// Mean rows per decode step.
+    pub fn mean_batch(&self) -> f64 {
+        self.decode_rows as f64 / self.decode_steps.max(1) as f64
+    }
+
+    pub fn ms_per_step(&self) -> f64 {
+        self.decode_ns as f64 / 1e6 / self.decode_steps.max(1) as f64
+    }
+
+    /// Tokens produced by decode steps per second of decode time.
+    pub fn decode_tokens_per_s(&self) -> f64 {
+        self.decode_rows as f64 / (self.decode_ns.max(1) as f64 / 1e9)
+    }
+
+    /// All generated tokens per second of model time (encoder, prefill, decode, cache).
+    pub fn tokens_per_s(&self) -> f64 {
+        let ns = self.encode_ns + self.prefill_ns + self.decode_ns + self.cache_ns;
+        self.generated_tokens as f64 / (ns.max(1) as f64 / 1e9)
+    }
+}
+
+/// The reply to one request. Dropping it cancels the request.
+#[derive(Debug)]
+pub struct Pending {
+    rx: Receiver<Result<Generation, InferError>>,
+    cancel: Arc<AtomicBool>,
+}
+
+impl Pending {
+    /// Blocks until the request finishes.
+    pub fn wait(self) -> Result<Generation, InferError> {
+        self.rx.recv().unwrap_or(Err(InferError::BackendGone))
+    }
+}
+
+impl Drop for Pending {
+    fn drop(&mut self) {
+        self.cancel.store(true, Ordering::Relaxed);
+    }
+}
+
+/// A validated request on its way to the worker.
+struct Job {
+    points: Arc<[[f32; 6]]>,
+    prompt: Vec<u32>,
+    grammar: Grammar,
+    sampler: Sampler,
+    max_tokens: usize,
+    ignore_eos: bool,
+    reply: Sender<Result<Generation, InferError>>,
+    cancel: Arc<AtomicBool>,
+}
+
+enum Command {
+    Submit(Vec<Job>),
+}
+
+/// Handle to the inference thread. `Send + Sync`: share it (e.g. in an `Arc`) between
+/// request handlers. Dropping it stops the thread after failing whatever is still queued.
+pub struct Backend {
+    tx: Option<Sender<Command>>,
+    thread: Option<std::thread::JoinHandle<()>>,
+    info: ModelInfo,
+    config: BackendConfig,
+    metrics: Arc<Metrics>,
+}
+
+impl std::fmt::Debug for Backend {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Backend")
+            .field("info", &self.info)
+            .field("config", &self.config)
+            .finish()
+    }
+}
+
+impl Backend {
+    /// Moves `model` onto a new inference thread.
+    pub fn new(model: SkeletonModel, config: BackendConfig) -> Result<Backend, InferError> {
+        let info = model.info().clone();
+        let metrics = Arc::new(Metrics::default());
+        let (tx, rx) = channel();
+        let worker = Worker {
+            model,
+            kv_cache: config.kv_cache,
+            max_batch: config.max_batch.max(1),
+            rx,
+            waiting: VecDeque::new(),
+            running: Vec::new(),
+            cache: None,
+            metrics: metrics.clone(),
+        };
+        let thread = std::thread::Builder::new()
+            .name("rigserve-infer".into())
+            .spawn(move || worker.run())
+            .map_err(|e| {
+                InferError::Environment(format!("cannot start the inference thread: {e}"))
+            })?;
+        Ok(Backend {
+            tx: Some(tx),
+            thread: Some(thread),
+            info,
+            config,
+            metrics,
+        })
+    }
+
+    pub fn info(&self) -> &ModelInfo {
+        &self.info
+    }
+
+    pub fn config(&self) -> &BackendConfig {
+        &self.config
+    }
+
+    pub fn metrics(&self) -> MetricsSnapshot {
+        self.metrics.snapshot()
+    }
+
+    /// Queues one request. Invalid requests are refused here, before they reach the queue.
+    pub fn submit(&self, req: SkeletonRequest) -> Result<Pending, InferError> {
+        self.submit_many(vec![req]).map(|mut v| v.remove(0))
+    }
+
+    /// Queues requests together: they are admitted in the same iteration (as far as
+    /// `max_batch` allows), so they share prefill and decode steps. Either all are queued
+    /// or, when one is invalid, none.
+    pub fn submit_many(&self, reqs: Vec<SkeletonRequest>) -> Result<Vec<Pending>, InferError> {
+        let mut jobs = Vec::with_capacity(reqs.len());
+        let mut pending = Vec::with_capacity(reqs.len());
+        for (i, r) in reqs.into_iter().enumerate() {
+            let (job, p) = self.validate(r).map_err(|e| match e {
+                InferError::InvalidRequest(m) if i > 0 => {
+                    InferError::InvalidRequest(format!("request {i}: {m}"))
+                }
+                e => e,
+            })?;
+            jobs.push(job);
+            pending.push(p);
+        }
+        let n = jobs.len() as u64;
+        let tx = self.tx.as_ref().ok_or(InferError::BackendGone)?;
+        tx.send(Command::Submit(jobs))
+            .map_err(|_| InferError::BackendGone)?;
+        Metrics::add(&self.metrics.requests, n);
+        Ok(pending)
+    }
+
+    /// Submits and waits.
+    pub fn generate(&self, req: SkeletonRequest) -> Result<Generation, InferError> {
+        self.submit(req)?.wait()
+    }
+
+    fn validate(&self, r: SkeletonRequest) -> Result<(Job, Pending), InferError> {
+        let bad = |m: String| InferError::InvalidRequest(m);
+        if r.points.is_empty() {
+            return Err(bad("no points".into()));
+        }
+        if r.points.iter().flatten().any(|v| !v.is_finite()) {
+            return Err(bad("points hold a non-finite value".into()));
+        }
+        r.sampling.validate().map_err(bad)?;
+        if let Some(&t) = r
+            .prompt
+            .iter()
+            .find(|&&t| t as usize >= self.info.vocab_size)
+        {
+            return Err(bad(format!(
+                "prompt token {t} is outside this model's vocabulary of {}",
+                self.info.vocab_size
+            )));
+        }
+        let grammar = Grammar::from_prefix(r.max_bones, &r.prompt)
+            .map_err(|e| bad(format!("prompt rejected: {e}")))?;
+        if grammar.class_token().is_none() {
+            return Err(bad(
+                "the prompt must start with <bos> and a class token".into()
+            ));
+        }
+        if grammar.is_done() {
+            return Err(bad("the prompt already ends with <eos>".into()));
+        }
+        let model_max = self.info.max_tokens;
+        let max_tokens = if r.max_tokens == 0 {
+            model_max
+        } else {
+            r.max_tokens.min(model_max)
+        };
+        if r.prompt.len() >= max_tokens {
+            return Err(bad(format!(
+                "the prompt has {} tokens; at most {} fit with room to generate",
+                r.prompt.len(),
+                max_tokens - 1
+            )));
+        }
+        if !r.ignore_eos {
+            let need = completion_cost(&grammar).unwrap_or(usize::MAX);
+            if need > max_tokens - r.prompt.len() {
+                return Err(bad(format!(
+                    "the prompt needs {need} more tokens to end but only {} fit in {max_tokens}",
+                    max_tokens - r.prompt.len()
+                )));
+            }
+        }
+        let (reply, rx) = channel();
+        let cancel = Arc::new(AtomicBool::new(false));
+        Ok((
+            Job {
+                points: r.points,
+                prompt: r.prompt,
+                grammar,
+                sampler: Sampler::new(r.sampling),
+                max_tokens,
+                ignore_eos: r.ignore_eos,
+                reply,
+                cancel: cancel.clone(),
+            },
+            Pending { rx, cancel },
+        ))
+    }
+
+    /// Stops the thread; queued and running requests fail with [`InferError::BackendGone`].
+    pub fn shutdown(mut self) {
+        self.stop();
+    }
+
+    fn stop(&mut self) {
+        self.tx.take();
+        if let Some(t) = self.thread.take() {
+            let _ = t.join();
+        }
+    }
+}
+
+impl Drop for Backend {
+    fn drop(&mut self) {
+        self.stop();
+    }
+}
+
+/// A sequence being decoded. `tokens` ends with the token sampled last, which the cache
+/// has not seen yet (it is the next step's input).
+struct Item {
+    tokens: Vec<u32>,
+    prompt_len: usize,
+    grammar: Grammar,
+    sampler: Sampler,
+    max_tokens: usize,
+    ignore_eos: bool,
+    reply: Sender<Result<Generation, InferError>>,
+    cancel: Arc<AtomicBool>,
+    /// Encoder output (L, d); kept only without a KV cache, which recomputes from it.
+    prefix: Option<Arc<Array2<f32>>>,
+}
+
+impl Item {
+    /// Samples the next token from this item's row of logits. `Some` when it finished.
+    fn choose(&mut self, logits: ArrayView1<f32>) -> Result<Option<FinishReason>, InferError> {
+        let mut l = logits.to_vec();
+        let remaining = self.max_tokens - self.tokens.len();
+        constrain_logits(&self.grammar, remaining, self.ignore_eos, &mut l);
+        let step = self.tokens.len() - self.prompt_len;
+        let tok = self
+            .sampler
+            .sample(&l)
+            .ok_or(InferError::NoAllowedToken { step })?;
+        self.grammar.advance(tok).map_err(|e| {
+            InferError::run("sampling", format!("grammar refused its own choice: {e}"))
+        })?;
+        self.tokens.push(tok);
+        Ok(if self.grammar.is_done() {
+            Some(FinishReason::Eos)
+        } else if self.tokens.len() >= self.max_tokens {
+            Some(FinishReason::Length)
+        } else {
+            None
+        })
+    }
+
+    fn last(&self) -> u32 {
+        *self.tokens.last().expect("prompt is never empty")
+    }
+}
+
+struct Worker {
+    model: SkeletonModel,
+    kv_cache: bool,
+    max_batch: usize,
+    rx: Receiver<Command>,
+    waiting: VecDeque<Job>,
+    running: Vec<Item>,
+    /// Rows in `running` order; `None` without a KV cache or when nothing runs.
+    cache: Option<KvCache>,
+    metrics: Arc<Metrics>,
+}
+
+impl Worker {
+    fn run(mut self) {
+        loop {
+            if self.running.is_empty() && self.waiting.is_empty() {
+                match self.rx.recv() {
+                    Ok(cmd) => self.take(cmd),
+                    Err(RecvError) => break,
+                }
+            }
+            let mut closed = false;
+            loop {
+                match self.rx.try_recv() {
+                    Ok(cmd) => self.take(cmd),
+                    Err(std::sync::mpsc::TryRecvError::Empty) => break,
+                    Err(std::sync::mpsc::TryRecvError::Disconnected) => {
+                        closed = true;
+                        break;
+                    }
+                }
+            }
+            if closed {
+                break;
+            }
+            self.drop_cancelled();
+            let room = self.max_batch.saturating_sub(self.running.len());
+            if room > 0 && !self.waiting.is_empty() {
+                let n = room.min(self.waiting.len());
+                let jobs: Vec<Job> = self.waiting.drain(..n).collect();
+                self.admit(jobs);
+            }
+            if !self.running.is_empty() {
+                self.step();
+            }
+            self.gauges();
+        }
+        for job in self.waiting.drain(..) {
+            let _ = job.reply.send(Err(InferError::BackendGone));
+        }
+        for item in self.running.drain(..) {
+            let _ = item.reply.send(Err(InferError::BackendGone));
+        }
+    }
+
+    fn take(&mut self, cmd: Command) {
+        match cmd {
+            Command::Submit(jobs) => self.waiting.extend(jobs),
+        }
+        self.gauges();
+    }
+
+    fn gauges(&self) {
+        self.metrics
+            .running
+            .store(self.running.len() as u64, Ordering::Relaxed);
+        self.metrics
+            .waiting
+            .store(self.waiting.len() as u64, Ordering::Relaxed);
+    }
+
+    fn drop_cancelled(&mut self) {
+        let before = self.waiting.len();
+        self.waiting.retain(|j| !j.cancel.load(Ordering::Relaxed));
+        let mut gone = (before - self.waiting.len()) as u64;
+        let keep: Vec<usize> = (0..self.running.len())
+            .filter(|&i| !self.running[i].cancel.load(Ordering::Relaxed))
+            .collect();
+        if keep.len() < self.running.len() {
+            gone += (self.running.len() - keep.len()) as u64;
+            self.retain_rows(&keep);
+        }
+        Metrics::add(&self.metrics.cancelled, gone);
+    }
+
+    /// Keeps the running items (and cache rows) at `keep`, in order.
+    fn retain_rows(&mut self, keep: &[usize]) {
+        let mut slots: Vec<Option<Item>> = self.running.drain(..).map(Some).collect();
+        self.running = keep
+            .iter()
+            .map(|&i| slots[i].take().expect("distinct rows"))
+            .collect();
+        if let Some(cache) = self.cache.take() {
+            if !self.running.is_empty() {
+                let t = Instant::now();
+                match cache.select(keep) {
+                    Ok(c) => self.cache = Some(c),
+                    Err(e) => self.fail_running(e),
+                }
+                Metrics::add(&self.metrics.cache_rebuilds, 1);
+                Metrics::add_time(&self.metrics.cache_ns, t);
+            }
+        }
+    }
+
+    fn fail_running(&mut self, e: InferError) {
+        Metrics::add(&self.metrics.failed, self.running.len() as u64);
+        for item in self.running.drain(..) {
+            let _ = item.reply.send(Err(e.clone()));
+        }
+        self.cache = None;
+    }
+
+    /// Encoder output per job, each distinct point set encoded once; sets of one size go
+    /// through the encoder together.
+    fn encode(&mut self, jobs: &[Job]) -> Result<Vec<Arc<Array2<f32>>>, InferError> {
+        let mut sets: Vec<Arc<[[f32; 6]]>> = Vec::new();
+        let mut of_job = Vec::with_capacity(jobs.len());
+        for j in jobs {
+            let k = match sets.iter().position(|s| Arc::ptr_eq(s, &j.points)) {
+                Some(k) => k,
+                None => {
+                    sets.push(j.points.clone());
+                    sets.len() - 1
+                }
+            };
+            of_job.push(k);
+        }
+        let mut prefixes: Vec<Option<Arc<Array2<f32>>>> = vec![None; sets.len()];
+        let mut sizes: Vec<usize> = sets.iter().map(|s| s.len()).collect();
+        sizes.sort_unstable();
+        sizes.dedup();
+        for n in sizes {
+            let group: Vec<usize> = (0..sets.len()).filter(|&k| sets[k].len() == n).collect();
+            let mut pts = Array3::<f32>::zeros((group.len(), n, 6));
+            for (g, &k) in group.iter().enumerate() {
+                for (i, p) in sets[k].iter().enumerate() {
+                    for (c, &v) in p.iter().enumerate() {
+                        pts[[g, i, c]] = v;
+                    }
+                }
+            }
+            let t = Instant::now();
+            let out = self.model.encode(&pts)?;
+            Metrics::add_time(&self.metrics.encode_ns, t);
+            Metrics::add(&self.metrics.encode_calls, 1);
+            Metrics::add(&self.metrics.encode_rows, group.len() as u64);
+            for (g, &k) in group.iter().enumerate() {
+                prefixes[k] = Some(Arc::new(out.index_axis(Axis(0), g).to_owned()));
+            }
+        }
+        Ok(of_job
+            .into_iter()
+            .map(|k| prefixes[k].clone().expect("every set encoded"))
+            .collect())
+    }
+
+    fn admit(&mut self, jobs: Vec<Job>) {
+        let prefixes = match self.encode(&jobs) {
+            Ok(p) => p,
+            Err(e) => return fail_jobs(&self.metrics, jobs, e),
+        };
+        let mut stacked = Array3::<f32>::zeros((
+            jobs.len(),
+            self.model.info().n_latents,
+            self.model.info().d_model,
+        ));
+        for (j, p) in prefixes.iter().enumerate() {
+            stacked.index_axis_mut(Axis(0), j).assign(p);
+        }
+        let prompts: Vec<&[u32]> = jobs.iter().map(|j| j.prompt.as_slice()).collect();
+        let t = Instant::now();
+        let res = self.model.prefill(&stacked, &prompts);
+        Metrics::add_time(&self.metrics.prefill_ns, t);
+        Metrics::add(&self.metrics.prefill_calls, 1);
+        Metrics::add(&self.metrics.prefill_rows, jobs.len() as u64);
+        let (logits, cache) = match res {
+            Ok(x) => x,
+            Err(e) => return fail_jobs(&self.metrics, jobs, e),
+        };
+        let kv = self.kv_cache;
+        let mut items: Vec<Item> = jobs
+            .into_iter()
+            .zip(prefixes)
+            .map(|(j, prefix)| Item {
+                prompt_len: j.prompt.len(),
+                tokens: j.prompt,
+                grammar: j.grammar,
+                sampler: j.sampler,
+                max_tokens: j.max_tokens,
+                ignore_eos: j.ignore_eos,
+                reply: j.reply,
+                cancel: j.cancel,
+                prefix: (!kv).then_some(prefix),
+            })
+            .collect();
+        let keep = self.sample_rows(&mut items, &logits);
+        if keep.is_empty() {
+            return;
+        }
+        let mut slots: Vec<Option<Item>> = items.into_iter().map(Some).collect();
+        self.running.extend(
+            keep.iter()
+                .map(|&i| slots[i].take().expect("distinct rows")),
+        );
+        if kv {
+            let t = Instant::now();
+            let joined = if keep.len() == slots.len() {
+                Ok(cache)
+            } else {
+                cache.select(&keep)
+            }
+            .and_then(|new| match self.cache.take() {
+                Some(old) => KvCache::concat(old, new),
+                None => Ok(new),
+            });
+            Metrics::add(&self.metrics.cache_rebuilds, 1);
+            Metrics::add_time(&self.metrics.cache_ns, t);
+            match joined {
+                Ok(c) => self.cache = Some(c),
+                Err(e) => self.fail_running(e),
+            }
+        }
+        let size = self.running.len() as u64;
+        self.metrics
+            .max_batch_seen
+            .fetch_max(size, Ordering::Relaxed);
+    }
+
+    /// Samples one token for each item from its row of `logits`, replies to the items that
+    /// finished or failed, and returns the rows still going.
+    fn sample_rows(&self, items: &mut [Item], logits: &Array2<f32>) -> Vec<usize> {
+        let mut keep = Vec::with_capacity(items.len());
+        for (r, item) in items.iter_mut().enumerate() {
+            match item.choose(logits.row(r)) {
+                Ok(None) => keep.push(r),
+                Ok(Some(finish)) => {
+                    Metrics::add(&self.metrics.completed, 1);
+                    Metrics::add(
+                        &self.metrics.generated_tokens,
+                        (item.tokens.len() - item.prompt_len) as u64,
+                    );
+                    let _ = item.reply.send(Ok(Generation {
+                        tokens: std::mem::take(&mut item.tokens),
+                        prompt_len: item.prompt_len,
+                        finish,
+                    }));
+                }
+                Err(e) => {
+                    Metrics::add(&self.metrics.failed, 1);
+                    let _ = item.reply.send(Err(e));
+                }
+            }
+        }
+        keep
+    }
+
+    fn step(&mut self) {
+        let b = self.running.len();
+        let t = Instant::now();
+        let res = if self.kv_cache {
+            let tokens: Vec<u32> = self.running.iter().map(Item::last).collect();
+            match self.cache.as_mut() {
+                Some(cache) => self.model.decode_step(&tokens, cache),
+                None => Err(InferError::run("decode", "running batch without a cache")),
+            }
+        } else {
+            let info = self.model.info();
+            let mut stacked = Array3::<f32>::zeros((b, info.n_latents, info.d_model));
+            for (j, item) in self.running.iter().enumerate() {
+                if let Some(p) = &item.prefix {
+                    stacked.index_axis_mut(Axis(0), j).assign(p.as_ref());
+                }
+            }
+            let seqs: Vec<&[u32]> = self.running.iter().map(|i| i.tokens.as_slice()).collect();
+            self.model.forward_full(&stacked, &seqs)
+        };
+        Metrics::add_time(&self.metrics.decode_ns, t);
+        Metrics::add(&self.metrics.decode_steps, 1);
+        Metrics::add(&self.metrics.decode_rows, b as u64);
+        let logits = match res {
+            Ok(l) => l,
+            Err(e) => return self.fail_running(e),
+        };
+        let mut items = std::mem::take(&mut self.running);
+        let keep = self.sample_rows(&mut items, &logits);
+        self.running = items;
+        if keep.len() < b {
+            self.retain_rows(&keep);
+        }
+    }
+}
+
+fn fail_jobs(metrics: &Metrics, jobs: Vec<Job>, e: InferError) {
+    Metrics::add(&metrics.failed, jobs.len() as u64);
+    for j in jobs {
+        let _ = j.reply.send(Err(e.clone()));
+    }
+}

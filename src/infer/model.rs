@@ -1,0 +1,610 @@
+//! The encoder and decoder sessions of a `skeleton-v1` model
+//! (`training/skeleton/ONNX_CONTRACT.md`): loading, contract validation, and the three
+//! calls a decoder loop needs (encode, prefill, one cached step).
+
+use super::kv::KvCache;
+use super::{InferError, Runtime};
+use crate::rig::tokenizer::{ALT, PAD};
+use ndarray::{s, Array2, Array3, Array4, ArrayView2, Axis, Ix3};
+use ort::session::builder::GraphOptimizationLevel;
+use ort::session::{Session, SessionInputValue};
+use ort::value::{DynValue, Outlet, Tensor, TensorElementType, TensorRef, ValueType};
+use std::borrow::Cow;
+use std::path::{Path, PathBuf};
+
+/// The only contract this crate speaks.
+pub const CONTRACT: &str = "skeleton-v1";
+
+/// Which exported weights to load: `encoder{suffix}.onnx` / `decoder{suffix}.onnx`.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Variant {
+    #[default]
+    Fp32,
+    Fp16,
+    Int8,
+}
+
+impl Variant {
+    fn suffix(self) -> &'static str {
+        match self {
+            Variant::Fp32 => "",
+            Variant::Fp16 => ".fp16",
+            Variant::Int8 => ".int8",
+        }
+    }
+}
+
+impl std::str::FromStr for Variant {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s.to_ascii_lowercase().as_str() {
+            "fp32" | "f32" => Ok(Variant::Fp32),
+            "fp16" | "f16" => Ok(Variant::Fp16),
+            "int8" | "i8" => Ok(Variant::Int8),
+            _ => Err(format!("unknown model variant {s:?} (fp32, fp16, int8)")),
+        }
+    }
+}
+
+/// Paths of the two ONNX files.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct ModelFiles {
+    pub encoder: PathBuf,
+    pub decoder: PathBuf,
+}
+
+impl ModelFiles {
+    /// The files in `dir` as `training/skeleton/export.py` names them. `dir` may be the
+    /// export folder itself or a models root holding it as `skeleton/`; the first that has
+    /// an encoder wins (when neither does, the error names `dir` itself).
+    pub fn in_dir(dir: &Path, variant: Variant) -> ModelFiles {
+        let at = |d: &Path| ModelFiles {
+            encoder: d.join(format!("encoder{}.onnx", variant.suffix())),
+            decoder: d.join(format!("decoder{}.onnx", variant.suffix())),
+        };
+        let direct = at(dir);
+        if direct.encoder.is_file() {
+            return direct;
+        }
+        let nested = at(&dir.join("skeleton"));
+        if nested.encoder.is_file() {
+            nested
+        } else {
+            direct
+        }
+    }
+}
+
+/// Session settings. One intra-op thread by default: the server runs one inference
+/// thread and scales by batching, not by fanning one call out over cores.
+#[derive(Clone, Debug)]
+pub struct SessionConfig {
+    pub intra_threads: usize,
+}
+
+impl Default for SessionConfig {
+    fn default() -> Self {
+        SessionConfig { intra_threads: 1 }
+    }
+}
+
+/// The model's dimensions, from the `custom_metadata_map` of both files.
+#[derive(Clone, Debug, PartialEq, Eq, serde::Serialize)]
+pub struct ModelInfo {
+    pub d_model: usize,
+    /// L: rows of the encoder's prefix, and the first token position.
+    pub n_latents: usize,
+    pub n_layers: usize,
+    pub n_heads: usize,
+    pub head_dim: usize,
+    /// Output width of the decoder; may differ from the tokenizer's vocabulary (ids the
+    /// model lacks are never sampled, ids past the tokenizer's are masked).
+    pub vocab_size: usize,
+    pub max_positions: usize,
+    /// Longest sequence, prompt included.
+    pub max_tokens: usize,
+    pub exporter: Option<String>,
+}
+
+/// A loaded `skeleton-v1` model. `run` needs `&mut`, so one thread owns it (see
+/// [`super::Backend`]).
+pub struct SkeletonModel {
+    encoder: Session,
+    decoder: Session,
+    info: ModelInfo,
+    files: ModelFiles,
+    past_names: Vec<String>,
+    present_names: Vec<String>,
+}
+
+impl std::fmt::Debug for SkeletonModel {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("SkeletonModel")
+            .field("files", &self.files)
+            .field("info", &self.info)
+            .finish()
+    }
+}
+
+fn open_session(rt: &Runtime, path: &Path, cfg: &SessionConfig) -> Result<Session, InferError> {
+    if !path.is_file() {
+        return Err(InferError::ModelNotFound(path.to_path_buf()));
+    }
+    let load = |m: String| InferError::ModelLoad {
+        path: path.to_path_buf(),
+        message: m,
+    };
+    Session::builder(rt.env())
+        .map_err(|e| load(e.to_string()))?
+        .with_intra_threads(cfg.intra_threads.max(1))
+        .map_err(|e| load(e.to_string()))?
+        .with_inter_threads(1)
+        .map_err(|e| load(e.to_string()))?
+        .with_optimization_level(GraphOptimizationLevel::Level3)
+        .map_err(|e| load(e.to_string()))?
+        .commit_from_file(path)
+        .map_err(|e| load(e.to_string()))
+}
+
+/// A dimension as the contract states it.
+#[derive(Clone, Copy)]
+enum Dim {
+    /// Must be dynamic: it changes from call to call (batch, sequence lengths).
+    Dynamic,
+    /// Must be this size, or dynamic.
+    Is(usize),
+}
+
+struct Expect<'a> {
+    name: &'a str,
+    ty: TensorElementType,
+    dims: &'a [Dim],
+}
+
+fn check_outlets(
+    path: &Path,
+    what: &str,
+    got: &[Outlet],
+    want: &[Expect],
+) -> Result<(), InferError> {
+    let bad = |problem: String| InferError::Contract {
+        path: path.to_path_buf(),
+        problem,
+    };
+    let mut got_names: Vec<&str> = got.iter().map(|o| o.name()).collect();
+    let mut want_names: Vec<&str> = want.iter().map(|e| e.name).collect();
+    got_names.sort_unstable();
+    want_names.sort_unstable();
+    if got_names != want_names {
+        return Err(bad(format!(
+            "{what} are {:?}, expected {:?}",
+            got.iter().map(|o| o.name()).collect::<Vec<_>>(),
+            want.iter().map(|e| e.name).collect::<Vec<_>>()
+        )));
+    }
+    for e in want {
+        let o = got
+            .iter()
+            .find(|o| o.name() == e.name)
+            .expect("names checked");
+        let ValueType::Tensor { ty, shape, .. } = o.dtype() else {
+            return Err(bad(format!("{} is not a tensor", e.name)));
+        };
+        if *ty != e.ty {
+            return Err(bad(format!(
+                "{} has element type {ty:?}, expected {:?}",
+                e.name, e.ty
+            )));
+        }
+        if shape.len() != e.dims.len() {
+            return Err(bad(format!(
+                "{} has rank {}, expected {}",
+                e.name,
+                shape.len(),
+                e.dims.len()
+            )));
+        }
+        for (axis, (&g, d)) in shape.iter().zip(e.dims).enumerate() {
+            let ok = match *d {
+                Dim::Dynamic => g < 0,
+                Dim::Is(v) => g < 0 || g as usize == v,
+            };
+            if !ok {
+                let want = match *d {
+                    Dim::Dynamic => "dynamic".to_string(),
+                    Dim::Is(v) => v.to_string(),
+                };
+                return Err(bad(format!(
+                    "{} axis {axis} is {g}, expected {want}",
+                    e.name
+                )));
+            }
+        }
+    }
+    Ok(())
+}
+
+fn read_metadata(session: &Session, path: &Path, part: &str) -> Result<ModelInfo, InferError> {
+    let bad = |problem: String| InferError::Contract {
+        path: path.to_path_buf(),
+        problem,
+    };
+    let meta = session
+        .metadata()
+        .map_err(|e| bad(format!("no metadata: {e}")))?;
+    let get = |k: &str| meta.custom(k);
+    match get("rigserve.contract") {
+        Some(c) if c == CONTRACT => {}
+        Some(c) => {
+            return Err(bad(format!(
+                "rigserve.contract is {c:?}, expected {CONTRACT:?}"
+            )))
+        }
+        None => return Err(bad("metadata rigserve.contract is missing".into())),
+    }
+    match get("rigserve.part") {
+        Some(p) if p == part => {}
+        other => {
+            return Err(bad(format!(
+                "rigserve.part is {other:?}, expected {part:?} (files swapped?)"
+            )))
+        }
+    }
+    let num = |k: &str| -> Result<usize, InferError> {
+        let v = get(k).ok_or_else(|| bad(format!("metadata {k} is missing")))?;
+        v.trim()
+            .parse::<usize>()
+            .ok()
+            .filter(|&n| n > 0)
+            .ok_or_else(|| bad(format!("metadata {k} = {v:?} is not a positive integer")))
+    };
+    let info = ModelInfo {
+        d_model: num("d_model")?,
+        n_latents: num("n_latents")?,
+        n_layers: num("n_layers")?,
+        n_heads: num("n_heads")?,
+        head_dim: num("head_dim")?,
+        vocab_size: num("vocab_size")?,
+        max_positions: num("max_positions")?,
+        max_tokens: num("max_tokens")?,
+        exporter: get("rigserve.exporter"),
+    };
+    if info.n_heads * info.head_dim != info.d_model {
+        return Err(bad(format!(
+            "n_heads {} × head_dim {} != d_model {}",
+            info.n_heads, info.head_dim, info.d_model
+        )));
+    }
+    if info.max_positions < info.n_latents + info.max_tokens {
+        return Err(bad(format!(
+            "max_positions {} < n_latents {} + max_tokens {}",
+            info.max_positions, info.n_latents, info.max_tokens
+        )));
+    }
+    // Class tokens are the prompt; a model without them cannot be driven.
+    if info.vocab_size < ALT as usize {
+        return Err(bad(format!(
+            "vocab_size {} does not reach the class tokens (needs at least {ALT})",
+            info.vocab_size
+        )));
+    }
+    if info.max_tokens < 4 {
+        return Err(bad(format!(
+            "max_tokens {} leaves no room for a bone",
+            info.max_tokens
+        )));
+    }
+    Ok(info)
+}
+
+impl SkeletonModel {
+    /// Opens both files and checks them against the contract: metadata (contract, part,
+    /// consistent dimensions, the encoder agreeing with the decoder) and every input and
+    /// output (names, element types, ranks, static sizes). Any mismatch is an
+    /// [`InferError::Contract`] naming the file.
+    pub fn load(rt: &Runtime, files: &ModelFiles, cfg: &SessionConfig) -> Result<Self, InferError> {
+        let encoder = open_session(rt, &files.encoder, cfg)?;
+        let decoder = open_session(rt, &files.decoder, cfg)?;
+        let enc_info = read_metadata(&encoder, &files.encoder, "encoder")?;
+        let info = read_metadata(&decoder, &files.decoder, "decoder")?;
+        if (enc_info.d_model, enc_info.n_latents) != (info.d_model, info.n_latents) {
+            return Err(InferError::Contract {
+                path: files.encoder.clone(),
+                problem: format!(
+                    "encoder (d_model {}, n_latents {}) does not match decoder (d_model {}, n_latents {})",
+                    enc_info.d_model, enc_info.n_latents, info.d_model, info.n_latents
+                ),
+            });
+        }
+        use Dim::*;
+        use TensorElementType::{Float32, Int64};
+        check_outlets(
+            &files.encoder,
+            "encoder inputs",
+            encoder.inputs(),
+            &[Expect {
+                name: "points",
+                ty: Float32,
+                dims: &[Dynamic, Dynamic, Is(6)],
+            }],
+        )?;
+        check_outlets(
+            &files.encoder,
+            "encoder outputs",
+            encoder.outputs(),
+            &[Expect {
+                name: "prefix",
+                ty: Float32,
+                dims: &[Dynamic, Is(info.n_latents), Is(info.d_model)],
+            }],
+        )?;
+        let past_names: Vec<String> = (0..info.n_layers)
+            .flat_map(|i| {
+                [
+                    format!("past_key_values.{i}.key"),
+                    format!("past_key_values.{i}.value"),
+                ]
+            })
+            .collect();
+        let present_names: Vec<String> = (0..info.n_layers)
+            .flat_map(|i| [format!("present.{i}.key"), format!("present.{i}.value")])
+            .collect();
+        let kv_dims = [Dynamic, Is(info.n_heads), Dynamic, Is(info.head_dim)];
+        let prefix_dims = [Dynamic, Dynamic, Is(info.d_model)];
+        let logits_dims = [Dynamic, Dynamic, Is(info.vocab_size)];
+        let mut ins = vec![
+            Expect {
+                name: "input_ids",
+                ty: Int64,
+                dims: &[Dynamic, Dynamic],
+            },
+            Expect {
+                name: "prefix",
+                ty: Float32,
+                dims: &prefix_dims,
+            },
+            Expect {
+                name: "position_ids",
+                ty: Int64,
+                dims: &[Dynamic, Dynamic],
+            },
+            Expect {
+                name: "attention_mask",
+                ty: Int64,
+                dims: &[Dynamic, Dynamic],
+            },
+        ];
+        ins.extend(past_names.iter().map(|n| Expect {
+            name: n,
+            ty: Float32,
+            dims: &kv_dims,
+        }));
+        check_outlets(&files.decoder, "decoder inputs", decoder.inputs(), &ins)?;
+        let mut outs = vec![Expect {
+            name: "logits",
+            ty: Float32,
+            dims: &logits_dims,
+        }];
+        outs.extend(present_names.iter().map(|n| Expect {
+            name: n,
+            ty: Float32,
+            dims: &kv_dims,
+        }));
+        check_outlets(&files.decoder, "decoder outputs", decoder.outputs(), &outs)?;
+        Ok(SkeletonModel {
+            encoder,
+            decoder,
+            info,
+            files: files.clone(),
+            past_names,
+            present_names,
+        })
+    }
+
+    pub fn info(&self) -> &ModelInfo {
+        &self.info
+    }
+
+    pub fn files(&self) -> &ModelFiles {
+        &self.files
+    }
+
+    /// `points` (B, N, 6) → prefix (B, L, d).
+    pub fn encode(&mut self, points: &Array3<f32>) -> Result<Array3<f32>, InferError> {
+        let (b, n, c) = points.dim();
+        if b == 0 || n == 0 || c != 6 {
+            return Err(InferError::InvalidRequest(format!(
+                "encoder input must be (B ≥ 1, N ≥ 1, 6), got ({b}, {n}, {c})"
+            )));
+        }
+        let input = TensorRef::from_array_view(points.view())
+            .map_err(|e| InferError::run("encoder input", e))?;
+        let out = self
+            .encoder
+            .run(ort::inputs!["points" => input])
+            .map_err(|e| InferError::run("encoder", e))?;
+        let prefix = out["prefix"]
+            .try_extract_array::<f32>()
+            .map_err(|e| InferError::run("encoder output", e))?;
+        let want = [b, self.info.n_latents, self.info.d_model];
+        if prefix.shape() != want {
+            return Err(InferError::OutputShape {
+                name: "prefix".into(),
+                got: prefix.shape().to_vec(),
+                expected: format!("{want:?}"),
+            });
+        }
+        Ok(prefix
+            .into_dimensionality::<Ix3>()
+            .expect("shape checked")
+            .to_owned())
+    }
+
+    /// First decoder call for a batch: `prefixes` (B, L, d) from the encoder, `prompts`
+    /// left-padded with `<pad>` to the longest. Returns the next-token logits (B, V) and
+    /// the cache to continue from.
+    pub fn prefill(
+        &mut self,
+        prefixes: &Array3<f32>,
+        prompts: &[&[u32]],
+    ) -> Result<(Array2<f32>, KvCache), InferError> {
+        let info = &self.info;
+        let (b, l, d) = prefixes.dim();
+        if b != prompts.len() || l != info.n_latents || d != info.d_model || b == 0 {
+            return Err(InferError::InvalidRequest(format!(
+                "prefill of {} prompts with a prefix of shape ({b}, {l}, {d})",
+                prompts.len()
+            )));
+        }
+        let t0 = prompts.iter().map(|p| p.len()).max().unwrap_or(0);
+        if t0 == 0 || t0 > info.max_tokens {
+            return Err(InferError::InvalidRequest(format!(
+                "prompt lengths must be in 1..={}, longest is {t0}",
+                info.max_tokens
+            )));
+        }
+        let mut ids = Array2::<i64>::from_elem((b, t0), PAD as i64);
+        let mut pos = Array2::<i64>::from_elem((b, l + t0), l as i64);
+        let mut mask = Array2::<i64>::zeros((b, l + t0));
+        let mut next_pos = Vec::with_capacity(b);
+        for (j, p) in prompts.iter().enumerate() {
+            let pad = t0 - p.len();
+            for (k, &t) in p.iter().enumerate() {
+                ids[[j, pad + k]] = t as i64;
+                pos[[j, l + pad + k]] = (l + k) as i64;
+                mask[[j, l + pad + k]] = 1;
+            }
+            for k in 0..l {
+                pos[[j, k]] = k as i64;
+                mask[[j, k]] = 1;
+            }
+            next_pos.push((l + p.len()) as i64);
+        }
+        let empty_past = Array4::<f32>::zeros((b, info.n_heads, 0, info.head_dim));
+        let prefix_in = TensorRef::from_array_view(prefixes.view())
+            .map_err(|e| InferError::run("prefill input", e))?;
+        let (logits, present) =
+            self.run_decoder(ids, prefix_in.into(), pos, mask.view(), |_| {
+                Ok(TensorRef::from_array_view(empty_past.view())?.into())
+            })?;
+        Ok((logits, KvCache::new(present, mask, next_pos)?))
+    }
+
+    /// One cached step: appends `tokens` (one per cache row) and returns the next-token
+    /// logits (B, V). On error the cache is left as it was.
+    pub fn decode_step(
+        &mut self,
+        tokens: &[u32],
+        cache: &mut KvCache,
+    ) -> Result<Array2<f32>, InferError> {
+        let b = cache.batch();
+        if tokens.len() != b || b == 0 {
+            return Err(InferError::InvalidRequest(format!(
+                "decode step with {} tokens for a cache of {b} rows",
+                tokens.len()
+            )));
+        }
+        if cache
+            .next_positions()
+            .iter()
+            .any(|&p| p as usize >= self.info.max_positions)
+        {
+            return Err(InferError::InvalidRequest(format!(
+                "a sequence would pass the model's {} positions",
+                self.info.max_positions
+            )));
+        }
+        let ids = Array2::from_shape_vec((b, 1), tokens.iter().map(|&t| t as i64).collect())
+            .expect("b×1");
+        let pos = Array2::from_shape_vec((b, 1), cache.next_positions().to_vec()).expect("b×1");
+        let mut mask = Array2::<i64>::ones((b, cache.len() + 1));
+        mask.slice_mut(s![.., ..cache.len()]).assign(&cache.mask());
+        let empty_prefix = Array3::<f32>::zeros((b, 0, self.info.d_model));
+        let prefix_in = TensorRef::from_array_view(empty_prefix.view())
+            .map_err(|e| InferError::run("decode input", e))?;
+        let past = cache.tensors();
+        let (logits, present) = self.run_decoder(ids, prefix_in.into(), pos, mask.view(), |i| {
+            Ok((&past[i]).into())
+        })?;
+        cache.advance(present, mask)?;
+        Ok(logits)
+    }
+
+    /// Next-token logits for whole sequences without a cache (the reference the cached
+    /// path is checked against, and `bench decode --no-kv-cache`).
+    pub fn forward_full(
+        &mut self,
+        prefixes: &Array3<f32>,
+        seqs: &[&[u32]],
+    ) -> Result<Array2<f32>, InferError> {
+        self.prefill(prefixes, seqs).map(|(logits, _)| logits)
+    }
+
+    fn run_decoder<'v>(
+        &mut self,
+        ids: Array2<i64>,
+        prefix: SessionInputValue<'v>,
+        pos: Array2<i64>,
+        mask: ArrayView2<'v, i64>,
+        past: impl Fn(usize) -> ort::Result<SessionInputValue<'v>>,
+    ) -> Result<(Array2<f32>, Vec<DynValue>), InferError> {
+        let (b, t) = ids.dim();
+        let total = mask.dim().1;
+        let input = |e: ort::Error| InferError::run("decoder input", e);
+        let mut inputs: Vec<(Cow<str>, SessionInputValue)> =
+            Vec::with_capacity(4 + self.past_names.len());
+        inputs.push((
+            "input_ids".into(),
+            Tensor::from_array(ids).map_err(input)?.into(),
+        ));
+        inputs.push(("prefix".into(), prefix));
+        inputs.push((
+            "position_ids".into(),
+            Tensor::from_array(pos).map_err(input)?.into(),
+        ));
+        inputs.push((
+            "attention_mask".into(),
+            TensorRef::from_array_view(mask).map_err(input)?.into(),
+        ));
+        for (i, name) in self.past_names.iter().enumerate() {
+            inputs.push((Cow::Borrowed(name.as_str()), past(i).map_err(input)?));
+        }
+        let mut out = self
+            .decoder
+            .run(inputs)
+            .map_err(|e| InferError::run("decoder", e))?;
+        let v = self.info.vocab_size;
+        let logits = out["logits"]
+            .try_extract_array::<f32>()
+            .map_err(|e| InferError::run("decoder output", e))?;
+        if logits.shape() != [b, t, v] {
+            return Err(InferError::OutputShape {
+                name: "logits".into(),
+                got: logits.shape().to_vec(),
+                expected: format!("[{b}, {t}, {v}]"),
+            });
+        }
+        let last = logits.index_axis(Axis(1), t - 1).to_owned();
+        let last = last.into_dimensionality().expect("rank 2");
+        let mut present = Vec::with_capacity(self.present_names.len());
+        for name in &self.present_names {
+            let value = out
+                .remove(name.as_str())
+                .ok_or_else(|| InferError::run("decoder output", format!("{name} missing")))?;
+            let shape: Vec<usize> = match value.dtype() {
+                ValueType::Tensor { shape, .. } => shape.iter().map(|&d| d as usize).collect(),
+                _ => Vec::new(),
+            };
+            let want = [b, self.info.n_heads, total, self.info.head_dim];
+            if shape != want {
+                return Err(InferError::OutputShape {
+                    name: name.clone(),
+                    got: shape,
+                    expected: format!("{want:?}"),
+                });
+            }
+            present.push(value);
+        }
+        Ok((last, present))
+    }
+}

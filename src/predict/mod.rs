@@ -1,0 +1,319 @@
+//! Mesh → skeleton with the skeleton model: normalize and sample the mesh exactly as
+//! `rigserve dataset` does, decode best-of-N candidates in one batch, keep the one the
+//! geometric checks ([`score`]) like best, and map it back to the mesh's frame.
+//!
+//! A partial skeleton (bones to keep) becomes the prompt: it is normalized, tokenized, and
+//! decoding continues after it, so the kept bones come first in the result, unchanged.
+
+pub mod score;
+
+use crate::infer::{Backend, InferError, SamplingParams, SkeletonRequest};
+use crate::mesh::{sample_surface, Mesh, Normalization};
+use crate::rig::template::match_mixamo;
+use crate::rig::tokenizer::{
+    class_token, detokenize, tokenize_with_order, TokenizeError, BOS, EOS,
+};
+use crate::rig::Skeleton;
+use score::{SkeletonScore, SurfaceModel};
+use std::collections::HashSet;
+use std::sync::Arc;
+
+/// Surface samples the model is fed (validation in training uses this many).
+pub const MODEL_POINTS: usize = 2048;
+
+#[derive(Clone, Debug)]
+pub struct PredictConfig {
+    pub points: usize,
+    /// Candidates decoded (best-of-N); 1 when sampling is greedy, since all would agree.
+    pub samples: usize,
+    /// Seeds the surface samples and the candidates (candidate `k` uses `seed + k`).
+    pub seed: u64,
+    /// Temperature / top-k / top-p; its seed is ignored (see `seed`).
+    pub sampling: SamplingParams,
+    pub max_bones: usize,
+    /// Longest sequence, prompt included; 0 is the model's limit.
+    pub max_tokens: usize,
+    /// Category hint for the class token (`humanoid`, `quadruped`, …); unknown or `None`
+    /// gives `<cls:none>`.
+    pub category: Option<String>,
+}
+
+impl Default for PredictConfig {
+    fn default() -> Self {
+        PredictConfig {
+            points: MODEL_POINTS,
+            samples: 4,
+            seed: 0,
+            sampling: SamplingParams {
+                temperature: 0.8,
+                top_k: 0,
+                top_p: 0.95,
+                seed: 0,
+            },
+            max_bones: 128,
+            max_tokens: 0,
+            category: None,
+        }
+    }
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum PredictError {
+    #[error(transparent)]
+    Infer(#[from] InferError),
+    #[error("the mesh has no surface to sample")]
+    EmptySurface,
+    #[error("bones to keep: {0}")]
+    KeepTokenize(#[from] TokenizeError),
+    #[error("{0} bones to keep, more than the cap of {1}")]
+    KeepTooMany(usize, usize),
+    #[error("no candidate gave a skeleton: {0}")]
+    NoCandidate(String),
+}
+
+impl PredictError {
+    pub fn code(&self) -> &'static str {
+        match self {
+            PredictError::Infer(e) => e.code(),
+            PredictError::EmptySurface => "mesh_no_surface",
+            PredictError::KeepTokenize(_) => "keep_bones_invalid",
+            PredictError::KeepTooMany(..) => "keep_bones_too_many",
+            PredictError::NoCandidate(_) => "no_candidate",
+        }
+    }
+}
+
+/// The mesh in the model's frame, with the samples fed to the encoder.
+#[derive(Clone, Debug)]
+pub struct MeshSamples {
+    pub normalization: Normalization,
+    /// `x y z nx ny nz` in the unit frame, shared by every candidate's request.
+    pub points: Arc<[[f32; 6]]>,
+    pub surface: SurfaceModel,
+}
+
+/// Normalizes `mesh` and samples `n` surface points with `seed`: the same steps, in the
+/// same order, as `dataset::build`, so the model sees what it was trained on.
+pub fn mesh_samples(mesh: &Mesh, n: usize, seed: u64) -> Result<MeshSamples, PredictError> {
+    let norm = Normalization::from_points(&mesh.positions);
+    let unit = Mesh {
+        positions: mesh.positions.iter().map(|&p| norm.apply(p)).collect(),
+        triangles: mesh.triangles.clone(),
+        ..Mesh::default()
+    };
+    let s = sample_surface(&unit, n, seed);
+    if s.points.is_empty() {
+        return Err(PredictError::EmptySurface);
+    }
+    let rows: Vec<[f32; 6]> = s
+        .points
+        .iter()
+        .zip(&s.normals)
+        .map(|(p, n)| [p.x, p.y, p.z, n.x, n.y, n.z])
+        .collect();
+    let area: f32 = unit
+        .triangles
+        .iter()
+        .map(|&t| {
+            let [a, b, c] = t.map(|i| unit.positions[i as usize]);
+            (b - a).cross(c - a).length() * 0.5
+        })
+        .sum();
+    let surface = SurfaceModel::new(&rows, area, unit.bounds());
+    Ok(MeshSamples {
+        normalization: norm,
+        points: rows.into(),
+        surface,
+    })
+}
+
+/// Bones to keep, turned into a prompt.
+#[derive(Clone, Debug)]
+pub struct KeepPrompt {
+    /// `<bos> <cls:…>` and the kept bones' tokens, without `<eos>`.
+    pub tokens: Vec<u32>,
+    /// The kept skeleton in the mesh frame, in the order decoding returns its bones
+    /// (Mixamo rigs reordered into the template, as the data set does).
+    pub bones: Skeleton,
+}
+
+/// Prompt for continuing `keep` (mesh frame). `category` overrides the keep file's own.
+pub fn keep_prompt(
+    keep: &Skeleton,
+    norm: &Normalization,
+    category: Option<&str>,
+    max_bones: usize,
+) -> Result<KeepPrompt, PredictError> {
+    if keep.len() > max_bones {
+        return Err(PredictError::KeepTooMany(keep.len(), max_bones));
+    }
+    let mut matched = match_mixamo(keep).unwrap_or_else(|| keep.clone());
+    if let Some(c) = category {
+        matched.category = Some(c.to_string());
+    }
+    let mut unit = matched.clone();
+    unit.map_points(|p| norm.apply(p));
+    let (mut tokens, order) = tokenize_with_order(&unit)?;
+    if tokens.last() == Some(&EOS) {
+        tokens.pop();
+    }
+    let bones = Skeleton {
+        bones: order.iter().map(|&i| matched.bones[i].clone()).collect(),
+        template: matched.template,
+        category: matched.category.clone(),
+    };
+    Ok(KeepPrompt { tokens, bones })
+}
+
+/// One decoded candidate.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct Candidate {
+    pub seed: u64,
+    pub tokens: Vec<u32>,
+    pub bones: usize,
+    pub score: Option<SkeletonScore>,
+    /// Why the candidate has no skeleton, when it has none.
+    pub error: Option<String>,
+}
+
+#[derive(Clone, Debug)]
+pub struct Prediction {
+    /// In the mesh's frame.
+    pub skeleton: Skeleton,
+    /// Index of the chosen candidate.
+    pub chosen: usize,
+    pub candidates: Vec<Candidate>,
+    pub normalization: Normalization,
+}
+
+/// Predicts a skeleton for `mesh`, continuing `keep` when given.
+pub fn predict_skeleton(
+    backend: &Backend,
+    mesh: &Mesh,
+    cfg: &PredictConfig,
+    keep: Option<&Skeleton>,
+) -> Result<Prediction, PredictError> {
+    let samples = mesh_samples(mesh, cfg.points, cfg.seed)?;
+    predict_from_samples(backend, &samples, cfg, keep)
+}
+
+/// [`predict_skeleton`] from samples already taken (to time or reuse them).
+pub fn predict_from_samples(
+    backend: &Backend,
+    samples: &MeshSamples,
+    cfg: &PredictConfig,
+    keep: Option<&Skeleton>,
+) -> Result<Prediction, PredictError> {
+    let norm = samples.normalization;
+    let kept = keep
+        .map(|k| keep_prompt(k, &norm, cfg.category.as_deref(), cfg.max_bones))
+        .transpose()?;
+    let prompt = match &kept {
+        Some(k) => k.tokens.clone(),
+        None => vec![BOS, class_token(cfg.category.as_deref())],
+    };
+    let n = if cfg.sampling.is_greedy() {
+        1
+    } else {
+        cfg.samples.max(1)
+    };
+    let seeds: Vec<u64> = (0..n as u64).map(|k| cfg.seed.wrapping_add(k)).collect();
+    let reqs = seeds
+        .iter()
+        .map(|&seed| SkeletonRequest {
+            points: samples.points.clone(),
+            prompt: prompt.clone(),
+            sampling: SamplingParams {
+                seed,
+                ..cfg.sampling
+            },
+            max_bones: cfg.max_bones,
+            max_tokens: cfg.max_tokens,
+            ignore_eos: false,
+        })
+        .collect();
+    let pending = backend.submit_many(reqs)?;
+    let mut candidates = Vec::with_capacity(n);
+    let mut skeletons = Vec::with_capacity(n);
+    for (p, &seed) in pending.into_iter().zip(&seeds) {
+        let (tokens, skel, error) = match p.wait() {
+            Ok(g) => match detokenize(&g.tokens) {
+                Ok(s) => (g.tokens, Some(s), None),
+                Err(e) => (g.tokens, None, Some(e.to_string())),
+            },
+            Err(e) => (Vec::new(), None, Some(e.to_string())),
+        };
+        let score = skel.as_ref().map(|s| samples.surface.score(s));
+        candidates.push(Candidate {
+            seed,
+            bones: skel.as_ref().map_or(0, Skeleton::len),
+            tokens,
+            score,
+            error,
+        });
+        skeletons.push(skel);
+    }
+    let chosen = (0..n)
+        .filter(|&k| candidates[k].score.is_some())
+        .min_by(|&a, &b| {
+            let (ca, cb) = (
+                candidates[a].score.unwrap().cost,
+                candidates[b].score.unwrap().cost,
+            );
+            ca.total_cmp(&cb).then(a.cmp(&b))
+        })
+        .ok_or_else(|| {
+            PredictError::NoCandidate(
+                candidates
+                    .iter()
+                    .filter_map(|c| c.error.clone())
+                    .next()
+                    .unwrap_or_default(),
+            )
+        })?;
+    let mut skeleton = skeletons[chosen].take().expect("chosen has a skeleton");
+    skeleton.map_points(|p| norm.invert(p));
+    if let Some(k) = &kept {
+        restore_kept(&mut skeleton, &k.bones);
+    }
+    if skeleton.category.is_none() {
+        skeleton.category = cfg.category.clone();
+    }
+    Ok(Prediction {
+        skeleton,
+        chosen,
+        candidates,
+        normalization: norm,
+    })
+}
+
+/// Puts the kept bones back exactly as given (the decoded ones went through quantization)
+/// and renames decoded bones whose generated names collide with kept ones.
+fn restore_kept(skel: &mut Skeleton, kept: &Skeleton) {
+    let n = kept.len().min(skel.len());
+    for (b, k) in skel.bones.iter_mut().zip(&kept.bones).take(n) {
+        b.name = k.name.clone();
+        b.head = k.head;
+        b.spring = k.spring;
+    }
+    // New bones may hang off moved kept joints: re-infer every tail, then give kept
+    // bones their own tails back.
+    skel.infer_tails();
+    for (b, k) in skel.bones.iter_mut().zip(&kept.bones).take(n) {
+        b.tail = k.tail;
+    }
+    let mut used: HashSet<String> = skel.bones[..n].iter().map(|b| b.name.clone()).collect();
+    for b in &mut skel.bones[n..] {
+        if used.contains(&b.name) {
+            let base = b.name.clone();
+            b.name = (1..)
+                .map(|k| format!("{base}_{k}"))
+                .find(|c| !used.contains(c))
+                .expect("unbounded");
+        }
+        used.insert(b.name.clone());
+    }
+    if skel.template.is_none() {
+        skel.template = kept.template;
+    }
+}

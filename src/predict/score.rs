@@ -1,0 +1,262 @@
+//! Geometric checks that rank best-of-N skeleton candidates, in the spirit of TokenRig's
+//! rewards: bones should reach every part of the mesh, lie inside it, and stay within its
+//! bounds. Everything works in the unit frame and from the surface samples the model saw,
+//! so scoring costs milliseconds whatever the mesh's size.
+
+use crate::rig::Skeleton;
+use glam::Vec3;
+
+/// Weight of the fraction of bone samples outside the mesh, relative to coverage.
+const OUTSIDE_WEIGHT: f32 = 1.0;
+/// Weight of the joints' distance outside the mesh's bounding box.
+const BBOX_WEIGHT: f32 = 4.0;
+/// Interior samples per parent→child edge for the inside test (plus the joints).
+const EDGE_SAMPLES: usize = 3;
+/// Generalized winding number above which a point counts as inside.
+const INSIDE_WINDING: f32 = 0.5;
+
+/// Lower `cost` is better.
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
+pub struct SkeletonScore {
+    /// Mean distance from the surface samples to the nearest bone, divided by their mean
+    /// distance to the surface centroid: 1 is no better than a single joint at the centre.
+    pub coverage: f32,
+    /// Fraction of joint and bone samples outside the mesh (generalized winding number of
+    /// the oriented surface samples below 0.5).
+    pub outside: f32,
+    /// Mean distance of joints outside the mesh's bounding box (grown by 2 %), in the same
+    /// unit as `coverage`.
+    pub bbox_excess: f32,
+    pub cost: f32,
+}
+
+/// The mesh as the scorer sees it, in the unit frame.
+#[derive(Clone, Debug)]
+pub struct SurfaceModel {
+    points: Vec<Vec3>,
+    normals: Vec<Vec3>,
+    /// Surface area each sample stands for.
+    sample_area: f32,
+    /// Softening length of the winding kernel, about one sample spacing: without it a query
+    /// near a sample would be dominated by that one sample.
+    soft2: f32,
+    centroid_spread: f32,
+    lo: Vec3,
+    hi: Vec3,
+}
+
+impl SurfaceModel {
+    /// `samples` are `x y z nx ny nz` rows drawn uniformly by area over a surface of
+    /// `area`; `bounds` is the mesh's bounding box (all in the unit frame).
+    pub fn new(samples: &[[f32; 6]], area: f32, bounds: (Vec3, Vec3)) -> SurfaceModel {
+        let points: Vec<Vec3> = samples
+            .iter()
+            .map(|s| Vec3::new(s[0], s[1], s[2]))
+            .collect();
+        let normals = samples
+            .iter()
+            .map(|s| Vec3::new(s[3], s[4], s[5]))
+            .collect();
+        let n = points.len().max(1) as f32;
+        let centroid = points.iter().copied().sum::<Vec3>() / n;
+        let spread = points.iter().map(|p| p.distance(centroid)).sum::<f32>() / n;
+        let sample_area = area / n;
+        let (lo, hi) = bounds;
+        let margin = (hi - lo).max_element() * 0.02;
+        SurfaceModel {
+            points,
+            normals,
+            sample_area,
+            soft2: sample_area.max(1e-12),
+            centroid_spread: spread.max(1e-6),
+            lo: lo - Vec3::splat(margin),
+            hi: hi + Vec3::splat(margin),
+        }
+    }
+
+    /// Generalized winding number at `q` from the oriented samples (a point-cloud version
+    /// of the solid-angle sum): about 1 inside a closed surface, 0 outside, and it degrades
+    /// gracefully on meshes with holes, where ray parity breaks. The sign follows the
+    /// triangle winding, so the magnitude is what is tested.
+    pub fn winding(&self, q: Vec3) -> f32 {
+        let mut w = 0.0f32;
+        for (p, n) in self.points.iter().zip(&self.normals) {
+            let d = *p - q;
+            let r2 = d.length_squared() + self.soft2;
+            w += d.dot(*n) / (r2 * r2.sqrt());
+        }
+        w * self.sample_area / (4.0 * std::f32::consts::PI)
+    }
+
+    pub fn is_inside(&self, q: Vec3) -> bool {
+        self.winding(q).abs() >= INSIDE_WINDING
+    }
+
+    /// Scores a skeleton given in the unit frame.
+    pub fn score(&self, skel: &Skeleton) -> SkeletonScore {
+        let mut segs: Vec<(Vec3, Vec3)> = Vec::with_capacity(skel.len() * 2);
+        for b in &skel.bones {
+            if let Some(p) = b.parent {
+                segs.push((skel.bones[p].head, b.head));
+            }
+            segs.push((b.head, b.tail));
+        }
+        let coverage = if segs.is_empty() {
+            f32::INFINITY
+        } else {
+            let total: f32 = self
+                .points
+                .iter()
+                .map(|&q| {
+                    segs.iter()
+                        .map(|&(a, b)| segment_distance2(q, a, b))
+                        .fold(f32::INFINITY, f32::min)
+                        .sqrt()
+                })
+                .sum();
+            total / self.points.len().max(1) as f32 / self.centroid_spread
+        };
+        let mut probes: Vec<Vec3> = skel.bones.iter().map(|b| b.head).collect();
+        for b in &skel.bones {
+            if let Some(p) = b.parent {
+                let a = skel.bones[p].head;
+                for k in 1..=EDGE_SAMPLES {
+                    probes.push(a.lerp(b.head, k as f32 / (EDGE_SAMPLES + 1) as f32));
+                }
+            }
+        }
+        let outside = if probes.is_empty() {
+            1.0
+        } else {
+            probes.iter().filter(|&&q| !self.is_inside(q)).count() as f32 / probes.len() as f32
+        };
+        let bbox_excess = if skel.is_empty() {
+            0.0
+        } else {
+            skel.bones
+                .iter()
+                .map(|b| {
+                    (self.lo - b.head)
+                        .max(b.head - self.hi)
+                        .max(Vec3::ZERO)
+                        .length()
+                })
+                .sum::<f32>()
+                / skel.len() as f32
+                / self.centroid_spread
+        };
+        SkeletonScore {
+            coverage,
+            outside,
+            bbox_excess,
+            cost: coverage + OUTSIDE_WEIGHT * outside + BBOX_WEIGHT * bbox_excess,
+        }
+    }
+}
+
+fn segment_distance2(q: Vec3, a: Vec3, b: Vec3) -> f32 {
+    let ab = b - a;
+    let len2 = ab.length_squared();
+    let t = if len2 > 0.0 {
+        ((q - a).dot(ab) / len2).clamp(0.0, 1.0)
+    } else {
+        0.0
+    };
+    (a + ab * t).distance_squared(q)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::mesh::{sample_surface, Mesh};
+    use crate::rig::Bone;
+
+    fn cube() -> Mesh {
+        let mut m = Mesh::default();
+        for i in 0..8u32 {
+            m.positions.push(Vec3::new(
+                if i & 1 == 0 { -1.0 } else { 1.0 },
+                if i & 2 == 0 { -1.0 } else { 1.0 },
+                if i & 4 == 0 { -1.0 } else { 1.0 },
+            ));
+        }
+        // Outward-facing (counter-clockwise seen from outside).
+        m.triangles = vec![
+            [0, 2, 1],
+            [1, 2, 3],
+            [4, 5, 6],
+            [5, 7, 6],
+            [0, 1, 4],
+            [1, 5, 4],
+            [2, 6, 3],
+            [3, 6, 7],
+            [0, 4, 2],
+            [2, 4, 6],
+            [1, 3, 5],
+            [3, 7, 5],
+        ];
+        m.compute_normals();
+        m
+    }
+
+    fn surface() -> SurfaceModel {
+        let m = cube();
+        let s = sample_surface(&m, 2048, 3);
+        let rows: Vec<[f32; 6]> = s
+            .points
+            .iter()
+            .zip(&s.normals)
+            .map(|(p, n)| [p.x, p.y, p.z, n.x, n.y, n.z])
+            .collect();
+        SurfaceModel::new(&rows, 24.0, m.bounds())
+    }
+
+    fn chain(points: &[Vec3]) -> Skeleton {
+        let mut s = Skeleton {
+            bones: points
+                .iter()
+                .enumerate()
+                .map(|(i, &p)| Bone {
+                    name: format!("b{i}"),
+                    parent: i.checked_sub(1),
+                    head: p,
+                    tail: p,
+                    spring: false,
+                })
+                .collect(),
+            ..Skeleton::default()
+        };
+        s.infer_tails();
+        s
+    }
+
+    #[test]
+    fn winding_separates_inside_from_outside() {
+        let s = surface();
+        assert!(s.is_inside(Vec3::ZERO));
+        assert!(s.is_inside(Vec3::new(0.7, -0.6, 0.5)));
+        assert!(!s.is_inside(Vec3::new(1.6, 0.0, 0.0)));
+        assert!(!s.is_inside(Vec3::new(3.0, 3.0, -2.0)));
+    }
+
+    #[test]
+    fn inside_spread_skeleton_beats_outside_or_collapsed_one() {
+        let s = surface();
+        let good = chain(&[
+            Vec3::new(0.0, -0.7, 0.0),
+            Vec3::new(0.0, 0.0, 0.0),
+            Vec3::new(0.0, 0.7, 0.0),
+        ]);
+        let tiny = chain(&[Vec3::new(0.0, 0.0, 0.0), Vec3::new(0.0, 0.05, 0.0)]);
+        let outside = chain(&[
+            Vec3::new(1.5, -0.7, 0.0),
+            Vec3::new(1.5, 0.0, 0.0),
+            Vec3::new(1.5, 0.7, 0.0),
+        ]);
+        let (g, t, o) = (s.score(&good), s.score(&tiny), s.score(&outside));
+        assert!(g.cost < t.cost, "{g:?} vs {t:?}");
+        assert!(g.cost < o.cost, "{g:?} vs {o:?}");
+        assert_eq!(g.outside, 0.0);
+        assert!(o.outside > 0.9 && o.bbox_excess > 0.0);
+    }
+}
