@@ -111,15 +111,7 @@ pub fn mesh_samples(mesh: &Mesh, n: usize, seed: u64) -> Result<MeshSamples, Pre
         .zip(&s.normals)
         .map(|(p, n)| [p.x, p.y, p.z, n.x, n.y, n.z])
         .collect();
-    let area: f32 = unit
-        .triangles
-        .iter()
-        .map(|&t| {
-            let [a, b, c] = t.map(|i| unit.positions[i as usize]);
-            (b - a).cross(c - a).length() * 0.5
-        })
-        .sum();
-    let surface = SurfaceModel::new(&rows, area, unit.bounds());
+    let surface = SurfaceModel::new(&rows, &unit, seed);
     Ok(MeshSamples {
         normalization: norm,
         points: rows.into(),
