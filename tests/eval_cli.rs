@@ -142,3 +142,61 @@ fn the_category_medoid_baseline_scores_every_dev_mesh() {
     // A stretched stand-in skeleton is roughly placed, never exact.
     assert!(j2j > 0.01 && j2j < 0.5, "{j2j}");
 }
+
+/// The model-driven mode, with the tiny random-weight fixture: every mesh must get a
+/// valid skeleton and finite scores (the fixture's skeletons are nonsense; the plumbing
+/// is what is under test).
+#[test]
+fn skeleton_only_eval_runs_the_model_on_every_mesh() {
+    let Some(dir) = common::shared_rigs() else {
+        return;
+    };
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    if !root.join(".onnxruntime/libonnxruntime.so.1.31.1").is_file() {
+        eprintln!("SKIPPED: .onnxruntime/ is absent (scripts/setup.sh fetches it)");
+        return;
+    }
+    let tmp = tempfile::tempdir().unwrap();
+    let data = tmp.path().join("data");
+    std::fs::create_dir_all(&data).unwrap();
+    let mut manifest = String::from("file\tsplit\tcategory\n");
+    for e in common::manifest(&dir)
+        .iter()
+        .filter(|e| e.split == "dev")
+        .take(3)
+    {
+        std::fs::copy(dir.join(&e.file), data.join(&e.file)).unwrap();
+        manifest += &format!("{}\tdev\t{}\n", e.file, e.category);
+    }
+    std::fs::write(data.join("manifest.tsv"), manifest).unwrap();
+    let out = tmp.path().join("m.json");
+    let status = Command::new(env!("CARGO_BIN_EXE_rigserve"))
+        .current_dir(root)
+        .args([
+            "eval",
+            "--skeleton-only",
+            "--samples",
+            "2",
+            "--models",
+            "tests/fixtures/tiny_skeleton",
+            "--dataset",
+        ])
+        .arg(&data)
+        .arg("--out")
+        .arg(&out)
+        .status()
+        .unwrap();
+    assert!(status.success());
+    let r: Value = serde_json::from_slice(&std::fs::read(&out).unwrap()).unwrap();
+    assert_eq!(r["overall"]["count"], 3);
+    assert_eq!(r["overall"]["valid_fraction"], 1.0);
+    assert!(r["overall"]["skeleton"]["cd_j2j"]
+        .as_f64()
+        .unwrap()
+        .is_finite());
+    assert!(r["models"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .all(|m| m["joints_pred"].as_u64().unwrap() > 0));
+}

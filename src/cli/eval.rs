@@ -1,35 +1,90 @@
-use anyhow::Context;
-use rigserve::mesh::Limits;
-use std::path::{Path, PathBuf};
+//! `rigserve eval`: one report format, whatever produced the rigs.
 
-/// What produces the rigs being scored.
-pub enum Source {
-    /// Rigged files already written by some tool.
-    Pred(PathBuf),
-    /// The category-medoid baseline from this training split.
-    Baseline(String),
-    /// rigserve's shipped models.
-    Model,
+use super::rig::ModelArgs;
+use super::LimitArgs;
+use anyhow::Context;
+use rigserve::infer::{BackendConfig, SamplingParams};
+use rigserve::predict::PredictConfig;
+use std::path::PathBuf;
+
+#[derive(clap::Args, Debug)]
+pub struct EvalArgs {
+    /// Folder holding `manifest.tsv` (columns `file`, `category`, optional `split`).
+    #[arg(long)]
+    pub dataset: PathBuf,
+    /// Only the rows of this split (e.g. `dev`).
+    #[arg(long)]
+    pub split: Option<String>,
+    /// Folder of rigged GLBs named like the data set's files, to score.
+    #[arg(long, conflicts_with_all = ["baseline", "skeleton_only"])]
+    pub pred: Option<PathBuf>,
+    /// Score the trivial baseline: each category's medoid training skeleton (from
+    /// `--train-split`) stretched onto the mesh's bounding box.
+    #[arg(long, conflicts_with = "skeleton_only")]
+    pub baseline: bool,
+    #[arg(long, default_value = "train")]
+    pub train_split: String,
+    /// Run the shipped skeleton model on every mesh and score its skeletons.
+    #[arg(long)]
+    pub skeleton_only: bool,
+    /// Do not pass the manifest's category to the model as a hint.
+    #[arg(long)]
+    pub no_category_hint: bool,
+    /// Candidates per mesh (best-of-N).
+    #[arg(long, default_value_t = 4)]
+    pub samples: usize,
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    /// Sampling temperature; 0 decodes greedily.
+    #[arg(long, default_value_t = 0.8)]
+    pub temperature: f32,
+    #[arg(long, default_value_t = 0.95)]
+    pub top_p: f32,
+    #[command(flatten)]
+    pub model: ModelArgs,
+    /// Where to write the report.
+    #[arg(long)]
+    pub out: PathBuf,
+    #[command(flatten)]
+    pub limits: LimitArgs,
 }
 
-pub fn run(
-    dataset: &Path,
-    split: Option<&str>,
-    source: Source,
-    out: &Path,
-    limits: &Limits,
-) -> anyhow::Result<()> {
-    let report = match source {
-        Source::Pred(pred) => rigserve::eval::eval_pred(dataset, split, &pred, limits)?,
-        Source::Baseline(train) => rigserve::eval::eval_baseline(dataset, split, &train, limits)?,
-        Source::Model => {
-            anyhow::bail!(
-                "model-driven evaluation needs the shipped models; use --pred DIR or --baseline"
-            )
-        }
+pub fn run(a: EvalArgs) -> anyhow::Result<()> {
+    let limits = a.limits.limits();
+    let split = a.split.as_deref();
+    let report = if let Some(pred) = &a.pred {
+        rigserve::eval::eval_pred(&a.dataset, split, pred, &limits)?
+    } else if a.baseline {
+        rigserve::eval::eval_baseline(&a.dataset, split, &a.train_split, &limits)?
+    } else if a.skeleton_only {
+        let backend = a.model.backend(BackendConfig {
+            max_batch: a.samples.max(1),
+            kv_cache: true,
+        })?;
+        let cfg = PredictConfig {
+            samples: a.samples,
+            seed: a.seed,
+            sampling: SamplingParams {
+                temperature: a.temperature,
+                top_k: 0,
+                top_p: a.top_p,
+                seed: a.seed,
+            },
+            ..PredictConfig::default()
+        };
+        rigserve::eval::eval_model_skeleton(
+            &a.dataset,
+            split,
+            &backend,
+            &cfg,
+            !a.no_category_hint,
+            &limits,
+        )?
+    } else {
+        anyhow::bail!("say what to score: --pred DIR, --baseline or --skeleton-only (skinning evaluation comes with the skin model)");
     };
-    std::fs::write(out, serde_json::to_vec_pretty(&report)?)
-        .with_context(|| format!("writing {}", out.display()))?;
+    std::fs::write(&a.out, serde_json::to_vec_pretty(&report)?)
+        .with_context(|| format!("writing {}", a.out.display()))?;
     let o = &report.overall;
     eprintln!(
         "{} models, {:.1}% valid | CD-J2J {:.4} CD-J2B {:.4} CD-B2B {:.4} | skin L1 {:.4} P {:.3} R {:.3} deform {:.4}",

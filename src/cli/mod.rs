@@ -57,28 +57,7 @@ pub enum Command {
         limits: LimitArgs,
     },
     /// Scores rigs against a data set's artist rigs and writes a JSON report.
-    Eval {
-        /// Folder holding `manifest.tsv` (columns `file`, `category`, optional `split`).
-        #[arg(long)]
-        dataset: PathBuf,
-        /// Only the rows of this split (e.g. `dev`).
-        #[arg(long)]
-        split: Option<String>,
-        /// Folder of rigged GLBs named like the data set's files, to score.
-        #[arg(long, conflicts_with = "baseline")]
-        pred: Option<PathBuf>,
-        /// Score the trivial baseline instead: each category's medoid training skeleton
-        /// (from `--train-split`) stretched onto the mesh's bounding box.
-        #[arg(long)]
-        baseline: bool,
-        #[arg(long, default_value = "train")]
-        train_split: String,
-        /// Where to write the report.
-        #[arg(long)]
-        out: PathBuf,
-        #[command(flatten)]
-        limits: LimitArgs,
-    },
+    Eval(eval::EvalArgs),
     /// Writes training arrays and token sequences from rigged meshes (see `training/`).
     Dataset(DatasetArgs),
     /// Predicts a skeleton for a mesh with the skeleton model.
@@ -134,21 +113,6 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         }
         Command::Rig(a) => rig::run(a),
         Command::Bench(c) => bench::run(c),
-        Command::Eval {
-            dataset,
-            split,
-            pred,
-            baseline,
-            train_split,
-            out,
-            limits,
-        } => {
-            let source = match (pred, baseline) {
-                (_, true) => eval::Source::Baseline(train_split),
-                (Some(p), false) => eval::Source::Pred(p),
-                (None, false) => eval::Source::Model,
-            };
-            eval::run(&dataset, split.as_deref(), source, &out, &limits.limits())
-        }
+        Command::Eval(a) => eval::run(a),
     }
 }

@@ -296,3 +296,63 @@ pub fn eval_baseline(
         models,
     ))
 }
+
+/// `rigserve eval --skeleton-only`: runs the skeleton model on every mesh of the split
+/// (the model sees only geometry, so the file's own rig is ignored) and scores the
+/// predicted skeleton against the artist's. With `category_hint`, the manifest's
+/// category is given to the model as its class token.
+pub fn eval_model_skeleton(
+    dataset: &Path,
+    split: Option<&str>,
+    backend: &crate::infer::Backend,
+    cfg: &crate::predict::PredictConfig,
+    category_hint: bool,
+    limits: &Limits,
+) -> Result<Report, EvalError> {
+    let entries = read_manifest(dataset)?;
+    let mut models = Vec::new();
+    for e in entries
+        .iter()
+        .filter(|e| split.is_none() || e.split.as_deref() == split)
+    {
+        let mut report = ModelReport {
+            file: e.file.clone(),
+            category: e.category.clone(),
+            valid: false,
+            error: None,
+            joints_gt: 0,
+            joints_pred: 0,
+            skeleton: None,
+            skin: None,
+        };
+        match load_rig(&dataset.join(&e.file), limits) {
+            Err(info) => report.error = Some(info),
+            Ok((mesh, gt)) => {
+                report.joints_gt = gt.skeleton.len();
+                let cfg = crate::predict::PredictConfig {
+                    category: category_hint.then(|| e.category.clone()),
+                    ..cfg.clone()
+                };
+                match crate::predict::predict_skeleton(backend, &mesh, &cfg, None) {
+                    Ok(pred) => {
+                        report.joints_pred = pred.skeleton.len();
+                        report.valid = pred.skeleton.validate(cfg.max_bones).is_ok();
+                        report.skeleton = Some(score_skeleton(
+                            &pred.skeleton,
+                            &gt.skeleton,
+                            &Frame::from_points(&mesh.positions),
+                        ));
+                    }
+                    Err(e) => report.error = Some(err(e.code(), e)),
+                }
+            }
+        }
+        models.push(report);
+    }
+    let mode = if category_hint {
+        "model_skeleton_with_category_hint"
+    } else {
+        "model_skeleton"
+    };
+    Ok(summarize(dataset, split, mode, models))
+}
