@@ -1,10 +1,9 @@
 //! `rigserve eval`: one report format, whatever produced the rigs.
 
-use super::rig::ModelArgs;
+use super::rig::{DecodeArgs, ModelArgs};
 use super::LimitArgs;
 use anyhow::Context;
-use rigserve::infer::{BackendConfig, SamplingParams};
-use rigserve::predict::PredictConfig;
+use rigserve::infer::BackendConfig;
 use std::path::PathBuf;
 
 #[derive(clap::Args, Debug)]
@@ -30,16 +29,8 @@ pub struct EvalArgs {
     /// Do not pass the manifest's category to the model as a hint.
     #[arg(long)]
     pub no_category_hint: bool,
-    /// Candidates per mesh (best-of-N).
-    #[arg(long, default_value_t = 4)]
-    pub samples: usize,
-    #[arg(long, default_value_t = 0)]
-    pub seed: u64,
-    /// Sampling temperature; 0 decodes greedily.
-    #[arg(long, default_value_t = 0.8)]
-    pub temperature: f32,
-    #[arg(long, default_value_t = 0.95)]
-    pub top_p: f32,
+    #[command(flatten)]
+    pub decode: DecodeArgs,
     #[command(flatten)]
     pub model: ModelArgs,
     /// Where to write the report.
@@ -58,20 +49,10 @@ pub fn run(a: EvalArgs) -> anyhow::Result<()> {
         rigserve::eval::eval_baseline(&a.dataset, split, &a.train_split, &limits)?
     } else if a.skeleton_only {
         let backend = a.model.backend(BackendConfig {
-            max_batch: a.samples.max(1),
+            max_batch: a.decode.samples.max(1),
             kv_cache: true,
         })?;
-        let cfg = PredictConfig {
-            samples: a.samples,
-            seed: a.seed,
-            sampling: SamplingParams {
-                temperature: a.temperature,
-                top_k: 0,
-                top_p: a.top_p,
-                seed: a.seed,
-            },
-            ..PredictConfig::default()
-        };
+        let cfg = a.decode.predict_config(None);
         rigserve::eval::eval_model_skeleton(
             &a.dataset,
             split,

@@ -50,29 +50,15 @@ impl ModelArgs {
     }
 }
 
-#[derive(clap::Args, Debug)]
-pub struct RigArgs {
-    /// The mesh (GLB, glTF, VRM or OBJ).
-    pub input: PathBuf,
-    /// Predict the skeleton only (skinning is not part of this command yet, so this is
-    /// required).
-    #[arg(long)]
-    pub skeleton_only: bool,
-    /// Where to write the bone tree JSON; standard output when absent.
-    #[arg(long)]
-    pub bones: Option<PathBuf>,
+/// How candidates are decoded (shared by `rig` and `eval --skeleton-only`).
+#[derive(clap::Args, Debug, Clone)]
+pub struct DecodeArgs {
     /// Seeds surface sampling and the candidates (candidate k uses seed + k).
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
     /// Candidates to decode; the best by geometric checks is kept.
     #[arg(long, default_value_t = 4)]
     pub samples: usize,
-    /// Category hint (humanoid, quadruped, bird_flyer, …).
-    #[arg(long)]
-    pub category: Option<String>,
-    /// Bone tree JSON of bones to keep; prediction continues from them.
-    #[arg(long)]
-    pub keep: Option<PathBuf>,
     #[arg(long, default_value_t = 128)]
     pub max_bones: usize,
     /// Sampling temperature; 0 decodes greedily (one candidate).
@@ -84,6 +70,45 @@ pub struct RigArgs {
     /// Nucleus sampling threshold (1: off).
     #[arg(long, default_value_t = 0.95)]
     pub top_p: f32,
+}
+
+impl DecodeArgs {
+    pub fn predict_config(&self, category: Option<String>) -> PredictConfig {
+        PredictConfig {
+            samples: self.samples,
+            seed: self.seed,
+            sampling: SamplingParams {
+                temperature: self.temperature,
+                top_k: self.top_k,
+                top_p: self.top_p,
+                seed: self.seed,
+            },
+            max_bones: self.max_bones,
+            category,
+            ..PredictConfig::default()
+        }
+    }
+}
+
+#[derive(clap::Args, Debug)]
+pub struct RigArgs {
+    /// The mesh (GLB, glTF, VRM or OBJ).
+    pub input: PathBuf,
+    /// Predict the skeleton only (skinning is not part of this command yet, so this is
+    /// required).
+    #[arg(long)]
+    pub skeleton_only: bool,
+    /// Where to write the bone tree JSON; standard output when absent.
+    #[arg(long)]
+    pub bones: Option<PathBuf>,
+    #[command(flatten)]
+    pub decode: DecodeArgs,
+    /// Category hint (humanoid, quadruped, bird_flyer, …).
+    #[arg(long)]
+    pub category: Option<String>,
+    /// Bone tree JSON of bones to keep; prediction continues from them.
+    #[arg(long)]
+    pub keep: Option<PathBuf>,
     #[command(flatten)]
     pub model: ModelArgs,
     #[command(flatten)]
@@ -109,22 +134,10 @@ pub fn run(a: RigArgs) -> anyhow::Result<()> {
         .map_err(|e| anyhow::anyhow!("{e} [{}]", e.code()))?;
     let keep = a.keep.as_deref().map(read_keep).transpose()?;
     let backend = a.model.backend(BackendConfig {
-        max_batch: a.samples.max(1),
+        max_batch: a.decode.samples.max(1),
         kv_cache: true,
     })?;
-    let cfg = PredictConfig {
-        samples: a.samples,
-        seed: a.seed,
-        sampling: SamplingParams {
-            temperature: a.temperature,
-            top_k: a.top_k,
-            top_p: a.top_p,
-            seed: a.seed,
-        },
-        max_bones: a.max_bones,
-        category: a.category.clone(),
-        ..PredictConfig::default()
-    };
+    let cfg = a.decode.predict_config(a.category.clone());
     let pred = predict_skeleton(&backend, &asset.mesh, &cfg, keep.as_ref())
         .map_err(|e| anyhow::anyhow!("{e} [{}]", e.code()))?;
     let tree = serde_json::to_string_pretty(&rigserve::export::bone_tree(&pred.skeleton))?;

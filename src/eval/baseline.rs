@@ -59,16 +59,7 @@ pub fn score_baseline(
     medoids: &BTreeMap<String, Skeleton>,
     limits: &Limits,
 ) -> ModelReport {
-    let mut report = ModelReport {
-        file: e.file.clone(),
-        category: e.category.clone(),
-        valid: false,
-        error: None,
-        joints_gt: 0,
-        joints_pred: 0,
-        skeleton: None,
-        skin: None,
-    };
+    let mut report = ModelReport::new(&e.file, &e.category);
     let (mesh, gt) = match load_rig(&dataset.join(&e.file), limits) {
         Ok(x) => x,
         Err(err) => {

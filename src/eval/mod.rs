@@ -77,6 +77,22 @@ pub struct ModelReport {
     pub skin: Option<SkinScores>,
 }
 
+impl ModelReport {
+    /// A report with nothing scored yet (invalid until a scorer says otherwise).
+    pub fn new(file: &str, category: &str) -> Self {
+        ModelReport {
+            file: file.to_string(),
+            category: category.to_string(),
+            valid: false,
+            error: None,
+            joints_gt: 0,
+            joints_pred: 0,
+            skeleton: None,
+            skin: None,
+        }
+    }
+}
+
 #[derive(Clone, Debug, Serialize)]
 pub struct GroupReport {
     pub count: usize,
@@ -156,16 +172,8 @@ pub fn score_pair(
             format!("{}: {}", e.code, e.message),
         )
     })?;
-    let mut report = ModelReport {
-        file: String::new(),
-        category: String::new(),
-        valid: false,
-        error: None,
-        joints_gt: gt.skeleton.len(),
-        joints_pred: 0,
-        skeleton: None,
-        skin: None,
-    };
+    let mut report = ModelReport::new("", "");
+    report.joints_gt = gt.skeleton.len();
     let (pred_mesh, pred) = match load_rig(pred_path, limits) {
         Ok(x) => x,
         Err(e) => {
@@ -252,14 +260,8 @@ pub fn eval_pred(
         let mut m = match score_pair(&dataset.join(&e.file), &pred.join(&e.file), limits) {
             Ok(m) => m,
             Err(info) => ModelReport {
-                file: String::new(),
-                category: String::new(),
-                valid: false,
                 error: Some(info),
-                joints_gt: 0,
-                joints_pred: 0,
-                skeleton: None,
-                skin: None,
+                ..ModelReport::new("", "")
             },
         };
         m.file = e.file.clone();
@@ -315,16 +317,7 @@ pub fn eval_model_skeleton(
         .iter()
         .filter(|e| split.is_none() || e.split.as_deref() == split)
     {
-        let mut report = ModelReport {
-            file: e.file.clone(),
-            category: e.category.clone(),
-            valid: false,
-            error: None,
-            joints_gt: 0,
-            joints_pred: 0,
-            skeleton: None,
-            skin: None,
-        };
+        let mut report = ModelReport::new(&e.file, &e.category);
         match load_rig(&dataset.join(&e.file), limits) {
             Err(info) => report.error = Some(info),
             Ok((mesh, gt)) => {

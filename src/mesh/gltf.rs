@@ -427,17 +427,20 @@ impl Document {
             })
     }
 
-    /// Reads an accessor as a flat list of f64 components (`count × components`),
-    /// applying `normalized` and sparse substitution. `cap` bounds the element count.
-    pub fn read_accessor(&self, index: usize, cap: u64) -> Result<(Vec<f64>, usize), MeshError> {
-        let a = self
-            .root
+    fn accessor(&self, index: usize) -> Result<&Accessor, MeshError> {
+        self.root
             .accessors
             .get(index)
             .ok_or(MeshError::IndexOutOfRange {
                 what: "accessor",
                 index: index as u64,
-            })?;
+            })
+    }
+
+    /// Reads an accessor as a flat list of f64 components (`count × components`),
+    /// applying `normalized` and sparse substitution. `cap` bounds the element count.
+    pub fn read_accessor(&self, index: usize, cap: u64) -> Result<(Vec<f64>, usize), MeshError> {
+        let a = self.accessor(index)?;
         let comps = type_components(&a.kind)
             .ok_or_else(|| MeshError::Invalid(format!("accessor {index} has type {:?}", a.kind)))?;
         let csize = component_size(a.component_type).ok_or_else(|| {
@@ -537,14 +540,7 @@ impl Document {
 
     /// Reads an accessor of unsigned integers (indices, joint indices).
     pub fn read_indices(&self, index: usize, cap: u64) -> Result<(Vec<u32>, usize), MeshError> {
-        let a = self
-            .root
-            .accessors
-            .get(index)
-            .ok_or(MeshError::IndexOutOfRange {
-                what: "accessor",
-                index: index as u64,
-            })?;
+        let a = self.accessor(index)?;
         if !matches!(a.component_type, 5121 | 5123 | 5125) {
             return Err(MeshError::Invalid(format!(
                 "accessor {index} must hold unsigned integers, has componentType {}",
