@@ -9,10 +9,7 @@ pub fn run(
     cfg: DatasetConfig,
     limits: &Limits,
 ) -> anyhow::Result<()> {
-    let entries: Vec<_> = rigserve::eval::read_manifest(dir)?
-        .into_iter()
-        .filter(|e| split.is_none() || e.split.as_deref() == split)
-        .collect();
+    let entries = rigserve::eval::entries_in(dir, split)?;
     let summary = build(dir, &entries, out, &cfg, limits)?;
     eprintln!(
         "{} files -> {} items in {}",

@@ -81,7 +81,7 @@ pub fn build(
                 continue;
             }
         };
-        summary.files += 1;
+        let items_before = summary.items;
         let base = match_mixamo(&gt.skeleton).unwrap_or_else(|| gt.skeleton.clone());
         for aug in 0..=cfg.augment {
             let seed = cfg.seed ^ ((fi as u64) << 20) ^ aug as u64;
@@ -136,6 +136,10 @@ pub fn build(
             serde_json::to_writer(&mut index, &item).map_err(std::io::Error::from)?;
             index.write_all(b"\n")?;
             summary.items += 1;
+        }
+        // A file counts once it gave at least one item (it may be skipped for its size).
+        if summary.items > items_before {
+            summary.files += 1;
         }
     }
     points.flush()?;

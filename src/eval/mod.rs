@@ -58,6 +58,13 @@ pub fn read_manifest(dataset: &Path) -> Result<Vec<ManifestEntry>, EvalError> {
         .collect())
 }
 
+/// The manifest rows of one split (all rows when `split` is None).
+pub fn entries_in(dataset: &Path, split: Option<&str>) -> Result<Vec<ManifestEntry>, EvalError> {
+    let mut entries = read_manifest(dataset)?;
+    entries.retain(|e| split.is_none() || e.split.as_deref() == split);
+    Ok(entries)
+}
+
 #[derive(Clone, Debug, Serialize)]
 pub struct ErrorInfo {
     pub code: String,
@@ -251,12 +258,8 @@ pub fn eval_pred(
     pred: &Path,
     limits: &Limits,
 ) -> Result<Report, EvalError> {
-    let entries = read_manifest(dataset)?;
     let mut models = Vec::new();
-    for e in entries
-        .iter()
-        .filter(|e| split.is_none() || e.split.as_deref() == split)
-    {
+    for e in entries_in(dataset, split)? {
         let mut m = match score_pair(&dataset.join(&e.file), &pred.join(&e.file), limits) {
             Ok(m) => m,
             Err(info) => ModelReport {
@@ -279,16 +282,10 @@ pub fn eval_baseline(
     train_split: &str,
     limits: &Limits,
 ) -> Result<Report, EvalError> {
-    let entries = read_manifest(dataset)?;
-    let train: Vec<ManifestEntry> = entries
-        .iter()
-        .filter(|e| e.split.as_deref() == Some(train_split))
-        .cloned()
-        .collect();
+    let train = entries_in(dataset, Some(train_split))?;
     let medoids = baseline::category_medoids(dataset, &train, limits);
-    let models = entries
+    let models = entries_in(dataset, split)?
         .iter()
-        .filter(|e| split.is_none() || e.split.as_deref() == split)
         .map(|e| baseline::score_baseline(dataset, e, &medoids, limits))
         .collect();
     Ok(summarize(
@@ -311,12 +308,8 @@ pub fn eval_model_skeleton(
     category_hint: bool,
     limits: &Limits,
 ) -> Result<Report, EvalError> {
-    let entries = read_manifest(dataset)?;
     let mut models = Vec::new();
-    for e in entries
-        .iter()
-        .filter(|e| split.is_none() || e.split.as_deref() == split)
-    {
+    for e in entries_in(dataset, split)? {
         let mut report = ModelReport::new(&e.file, &e.category);
         match load_rig(&dataset.join(&e.file), limits) {
             Err(info) => report.error = Some(info),

@@ -125,17 +125,6 @@ def test_quantized_files_are_smaller():
 
 
 if __name__ == "__main__":
-    import sys
-    import time
+    from training.testing import run_tests
 
-    failed = 0
-    for name, fn in list(globals().items()):
-        if name.startswith("test_") and callable(fn):
-            t = time.time()
-            try:
-                fn()
-                print(f"PASS {name} ({time.time() - t:.1f}s)")
-            except Exception as e:  # noqa: BLE001
-                failed += 1
-                print(f"FAIL {name}: {type(e).__name__}: {e}")
-    sys.exit(1 if failed else 0)
+    run_tests(globals())
