@@ -7,23 +7,35 @@ use rigserve::export::{export_glb, ExportOptions};
 use rigserve::mesh::{load, Limits, Normalization};
 use rigserve::rig::groundtruth::extract;
 use serde_json::Value;
+use std::ffi::OsStr;
 use std::path::Path;
 use std::process::Command;
 
-fn eval(dataset: &Path, pred: &Path, out: &Path, split: Option<&str>) -> Value {
-    let mut cmd = Command::new(env!("CARGO_BIN_EXE_rigserve"));
-    cmd.args(["eval", "--dataset"])
-        .arg(dataset)
-        .arg("--pred")
-        .arg(pred)
+/// Runs `rigserve eval ARGS --out OUT` from the repository root and reads the report.
+fn run_eval<S: AsRef<OsStr>>(args: impl IntoIterator<Item = S>, out: &Path) -> Value {
+    let status = Command::new(env!("CARGO_BIN_EXE_rigserve"))
+        .current_dir(env!("CARGO_MANIFEST_DIR"))
+        .arg("eval")
+        .args(args)
         .arg("--out")
-        .arg(out);
-    if let Some(s) = split {
-        cmd.args(["--split", s]);
-    }
-    let status = cmd.status().expect("run rigserve eval");
+        .arg(out)
+        .status()
+        .expect("run rigserve eval");
     assert!(status.success());
     serde_json::from_slice(&std::fs::read(out).unwrap()).unwrap()
+}
+
+fn eval(dataset: &Path, pred: &Path, out: &Path, split: Option<&str>) -> Value {
+    let mut args: Vec<&OsStr> = vec![
+        "--dataset".as_ref(),
+        dataset.as_os_str(),
+        "--pred".as_ref(),
+        pred.as_os_str(),
+    ];
+    if let Some(s) = split {
+        args.extend([OsStr::new("--split"), OsStr::new(s)]);
+    }
+    run_eval(args, out)
 }
 
 #[test]
@@ -127,15 +139,16 @@ fn the_category_medoid_baseline_scores_every_dev_mesh() {
     };
     let tmp = tempfile::tempdir().unwrap();
     let out = tmp.path().join("b.json");
-    let status = Command::new(env!("CARGO_BIN_EXE_rigserve"))
-        .args(["eval", "--baseline", "--split", "dev", "--dataset"])
-        .arg(&dir)
-        .arg("--out")
-        .arg(&out)
-        .status()
-        .unwrap();
-    assert!(status.success());
-    let r: Value = serde_json::from_slice(&std::fs::read(&out).unwrap()).unwrap();
+    let r = run_eval(
+        [
+            OsStr::new("--baseline"),
+            "--split".as_ref(),
+            "dev".as_ref(),
+            "--dataset".as_ref(),
+            dir.as_os_str(),
+        ],
+        &out,
+    );
     assert_eq!(r["overall"]["count"], 23);
     assert_eq!(r["overall"]["valid_fraction"], 1.0);
     let j2j = r["overall"]["skeleton"]["cd_j2j"].as_f64().unwrap();
@@ -170,24 +183,18 @@ fn skeleton_only_eval_runs_the_model_on_every_mesh() {
     }
     std::fs::write(data.join("manifest.tsv"), manifest).unwrap();
     let out = tmp.path().join("m.json");
-    let status = Command::new(env!("CARGO_BIN_EXE_rigserve"))
-        .current_dir(root)
-        .args([
-            "eval",
-            "--skeleton-only",
-            "--samples",
-            "2",
-            "--models",
-            "tests/fixtures/tiny_skeleton",
-            "--dataset",
-        ])
-        .arg(&data)
-        .arg("--out")
-        .arg(&out)
-        .status()
-        .unwrap();
-    assert!(status.success());
-    let r: Value = serde_json::from_slice(&std::fs::read(&out).unwrap()).unwrap();
+    let r = run_eval(
+        [
+            OsStr::new("--skeleton-only"),
+            "--samples".as_ref(),
+            "2".as_ref(),
+            "--models".as_ref(),
+            "tests/fixtures/tiny_skeleton".as_ref(),
+            "--dataset".as_ref(),
+            data.as_os_str(),
+        ],
+        &out,
+    );
     assert_eq!(r["overall"]["count"], 3);
     assert_eq!(r["overall"]["valid_fraction"], 1.0);
     assert!(r["overall"]["skeleton"]["cd_j2j"]

@@ -339,13 +339,7 @@ fn cylinder_obj(rings: usize, segments: usize, height: f32) -> String {
 }
 
 fn bone(name: &str, parent: Option<usize>, head: [f32; 3], tail: [f32; 3]) -> Bone {
-    Bone {
-        name: name.into(),
-        parent,
-        head: Vec3::from(head),
-        tail: Vec3::from(tail),
-        spring: false,
-    }
+    Bone::new(name, parent, head.into(), tail.into())
 }
 
 /// Smooth weights by distance to each bone's segment, negligible ones dropped and the

@@ -509,6 +509,19 @@ fn replace_once(hay: &[u8], from: &[u8], to: &[u8]) -> Vec<u8> {
 
 /// The library is loaded once per process, so a missing or broken one is tried in a
 /// fresh process: the CLI.
+/// Runs `rigserve rig … --bones OUT` and reads the bone tree it wrote.
+fn rig_bones(args: &[&str], out_path: &Path) -> rigserve::rig::Skeleton {
+    let out = cli(args);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let tree: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out_path).unwrap()).unwrap();
+    rigserve::export::parse_bone_tree(&tree).unwrap()
+}
+
 fn cli(args: &[&str]) -> std::process::Output {
     Command::new(env!("CARGO_BIN_EXE_rigserve"))
         .args(args)
@@ -697,28 +710,12 @@ fn rig_cli_writes_a_bone_tree() {
         "--category",
         "quadruped",
     ];
-    let out = cli(&args);
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    let tree: serde_json::Value =
-        serde_json::from_slice(&std::fs::read(&out_path).unwrap()).unwrap();
-    let skel = rigserve::export::parse_bone_tree(&tree).unwrap();
+    let skel = rig_bones(&args, &out_path);
     assert!(!skel.is_empty() && skel.len() <= 20);
     assert_eq!(skel.category.as_deref(), Some("quadruped"));
 
     args.extend(["--keep", keep_path.to_str().unwrap()]);
-    let out = cli(&args);
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    let tree: serde_json::Value =
-        serde_json::from_slice(&std::fs::read(&out_path).unwrap()).unwrap();
-    let skel = rigserve::export::parse_bone_tree(&tree).unwrap();
+    let skel = rig_bones(&args, &out_path);
     assert_eq!(skel.bones[0].name, "root");
     assert_eq!(skel.bones[2].name, "top");
 

@@ -679,13 +679,7 @@ mod tests {
     use crate::rig::skeleton::Bone;
 
     fn bone(name: &str, parent: Option<usize>, head: [f32; 3], tail: [f32; 3]) -> Bone {
-        Bone {
-            name: name.into(),
-            parent,
-            head: Vec3::from(head),
-            tail: Vec3::from(tail),
-            spring: false,
-        }
+        Bone::new(name, parent, head.into(), tail.into())
     }
 
     fn skel(bones: Vec<Bone>) -> Skeleton {

@@ -29,6 +29,19 @@ pub struct Bone {
     pub spring: bool,
 }
 
+impl Bone {
+    /// A non-spring bone.
+    pub fn new(name: impl Into<String>, parent: Option<usize>, head: Vec3, tail: Vec3) -> Self {
+        Bone {
+            name: name.into(),
+            parent,
+            head,
+            tail,
+            spring: false,
+        }
+    }
+}
+
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct Skeleton {
     pub bones: Vec<Bone>,
@@ -209,13 +222,7 @@ mod tests {
     use super::*;
 
     fn bone(name: &str, parent: Option<usize>, head: [f32; 3]) -> Bone {
-        Bone {
-            name: name.into(),
-            parent,
-            head: Vec3::from(head),
-            tail: Vec3::from(head),
-            spring: false,
-        }
+        Bone::new(name, parent, head.into(), head.into())
     }
 
     #[test]
