@@ -1,6 +1,6 @@
 //! `rigserve eval`: one report format, whatever produced the rigs.
 
-use super::rig::{DecodeArgs, ModelArgs};
+use super::rig::{DecodeArgs, ModelArgs, SkinArgs};
 use super::LimitArgs;
 use anyhow::Context;
 use rigserve::infer::BackendConfig;
@@ -15,17 +15,23 @@ pub struct EvalArgs {
     #[arg(long)]
     pub split: Option<String>,
     /// Folder of rigged GLBs named like the data set's files, to score.
-    #[arg(long, conflicts_with_all = ["baseline", "skeleton_only"])]
+    #[arg(long, conflicts_with_all = ["baseline", "skeleton_only", "skin_on_gt"])]
     pub pred: Option<PathBuf>,
     /// Score the trivial baseline: each category's medoid training skeleton (from
     /// `--train-split`) stretched onto the mesh's bounding box.
-    #[arg(long, conflicts_with = "skeleton_only")]
+    #[arg(long, conflicts_with_all = ["skeleton_only", "skin_on_gt"])]
     pub baseline: bool,
     #[arg(long, default_value = "train")]
     pub train_split: String,
     /// Run the shipped skeleton model on every mesh and score its skeletons.
-    #[arg(long)]
+    #[arg(long, conflicts_with = "skin_on_gt")]
     pub skeleton_only: bool,
+    /// Skin every mesh with rigserve, given the file's own (artist) skeleton, and score
+    /// the weights against the artist's.
+    #[arg(long)]
+    pub skin_on_gt: bool,
+    #[command(flatten)]
+    pub skin: SkinArgs,
     /// Do not pass the manifest's category to the model as a hint.
     #[arg(long)]
     pub no_category_hint: bool,
@@ -61,8 +67,10 @@ pub fn run(a: EvalArgs) -> anyhow::Result<()> {
             !a.no_category_hint,
             &limits,
         )?
+    } else if a.skin_on_gt {
+        rigserve::eval::skin::eval_skin_on_gt(&a.dataset, split, &a.skin.config(), &limits)?
     } else {
-        anyhow::bail!("say what to score: --pred DIR, --baseline or --skeleton-only (skinning evaluation comes with the skin model)");
+        anyhow::bail!("say what to score: --pred DIR, --baseline, --skeleton-only or --skin-on-gt");
     };
     std::fs::write(&a.out, serde_json::to_vec_pretty(&report)?)
         .with_context(|| format!("writing {}", a.out.display()))?;

@@ -8,6 +8,7 @@ use rigserve::infer::{
 };
 use rigserve::mesh;
 use rigserve::predict::{predict_skeleton, PredictConfig};
+use rigserve::rig::skin::SkinConfig;
 use std::path::{Path, PathBuf};
 
 /// Where the model and ONNX Runtime come from (shared by `rig` and `bench`).
@@ -86,6 +87,35 @@ impl DecodeArgs {
             max_bones: self.max_bones,
             category,
             ..PredictConfig::default()
+        }
+    }
+}
+
+/// Knobs of the geometric skinning (shared by `rig`, `eval --skin-on-gt` and `bench skin`).
+#[derive(clap::Args, Debug, Clone)]
+pub struct SkinArgs {
+    /// Voxels along the mesh's longest side for the geodesic distances (8 to 192).
+    #[arg(long, default_value_t = SkinConfig::default().resolution)]
+    pub voxels: usize,
+    /// Inverse-distance falloff exponent (larger: crisper boundaries between bones).
+    #[arg(long, default_value_t = SkinConfig::default().falloff)]
+    pub falloff: f32,
+    /// Added to every distance, in voxels (larger: softer blends near the bones).
+    #[arg(long, default_value_t = SkinConfig::default().softness)]
+    pub softness: f32,
+    /// Influences below this weight are dropped.
+    #[arg(long, default_value_t = SkinConfig::default().min_weight)]
+    pub min_weight: f32,
+}
+
+impl SkinArgs {
+    pub fn config(&self) -> SkinConfig {
+        SkinConfig {
+            resolution: self.voxels,
+            falloff: self.falloff,
+            softness: self.softness,
+            min_weight: self.min_weight,
+            ..SkinConfig::default()
         }
     }
 }

@@ -2,6 +2,7 @@
 //! is judged by, computed by the same code whichever tool produced the rig.
 
 pub mod baseline;
+pub mod skin;
 
 use crate::mesh::{self, Limits};
 use crate::rig::groundtruth::{self, GroundTruth};

@@ -124,14 +124,15 @@ fn sanitize_half_extent(h: f32) -> f32 {
     }
 }
 
+/// A bone as the segment head → tail (a point when the two coincide).
 #[derive(Clone, Copy, Debug, PartialEq)]
-struct Segment {
-    a: Vec3,
-    b: Vec3,
+pub(crate) struct Segment {
+    pub(crate) a: Vec3,
+    pub(crate) b: Vec3,
 }
 
 impl Segment {
-    fn distance(&self, p: Vec3) -> f32 {
+    pub(crate) fn distance(&self, p: Vec3) -> f32 {
         let ab = self.b - self.a;
         let len2 = ab.length_squared();
         if len2 <= 0.0 {

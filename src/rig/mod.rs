@@ -4,6 +4,7 @@ pub mod groundtruth;
 pub mod metrics;
 pub mod nearest;
 pub mod skeleton;
+pub mod skin;
 pub mod template;
 pub mod tokenizer;
 

@@ -1,0 +1,338 @@
+//! Geometric skinning: skin weights for any skeleton on any mesh, from distances measured
+//! inside the mesh's volume.
+//!
+//! 1. [`voxel`]: the mesh becomes solid cells (surface plus enclosed interior).
+//! 2. [`geodesic`]: each bone's distance field through those cells, so weights do not
+//!    jump gaps (leg to leg, arm to torso) the way straight-line distance does.
+//! 3. [`weights`]: each vertex blends its nearest bones, at most four, summing to 1.
+//!
+//! Separate parts of the mesh ([`components`]) keep to their own bones. A part that a
+//! bone passes through takes only the bones passing through it (a robot's segmented
+//! limbs stay rigid). A part no bone passes through but that touches the body (clothes,
+//! eyes, a hat resting on the head) takes what the distances say. A part that floats free
+//! of every bone's volume (a hat above the head, a sword held loose) is bound rigidly to
+//! the single bone nearest to it on average, as an artist parents a prop.
+//!
+//! This is also the distance feature and the fallback of the learned skin model.
+
+mod components;
+mod geodesic;
+mod validate;
+mod voxel;
+mod weights;
+
+use crate::mesh::Mesh;
+use crate::rig::metrics::Segment;
+use crate::rig::skeleton::SkeletonError;
+use crate::rig::{Skeleton, SkinWeights};
+use geodesic::{Ring, Stamp, Stencils, Volume};
+use glam::Vec3;
+use serde::Serialize;
+use std::time::Instant;
+use voxel::{Grid, Region};
+
+/// The most cells along the longest side, so memory stays bounded (~7 MB of flags).
+pub const MAX_RESOLUTION: usize = 192;
+
+/// Knobs of [`skin`]. The defaults were tuned on the data set's `train` split.
+#[derive(Clone, Debug)]
+pub struct SkinConfig {
+    /// Cells along the mesh's longest side (8 to [`MAX_RESOLUTION`]). Gaps narrower than
+    /// a cell are not seen.
+    pub resolution: usize,
+    /// Influences per vertex, 1 to 4.
+    pub max_influences: usize,
+    /// Exponent of the inverse-distance falloff: larger is crisper.
+    pub falloff: f32,
+    /// Added to every distance, in cells, so vertices on a bone still blend near joints.
+    pub softness: f32,
+    /// Influences below this (after normalizing) are dropped.
+    pub min_weight: f32,
+    /// The most bones a skeleton may have.
+    pub max_bones: usize,
+    /// A joint is outside the mesh when it is farther than this fraction of the mesh's
+    /// longest side beyond its bounding box; more than half the joints outside is refused.
+    pub outside_margin: f32,
+}
+
+impl Default for SkinConfig {
+    fn default() -> Self {
+        SkinConfig {
+            resolution: 80,
+            max_influences: 4,
+            falloff: 6.0,
+            softness: 1.0,
+            min_weight: 0.05,
+            max_bones: crate::mesh::scene::MAX_JOINTS as usize,
+            outside_margin: 0.25,
+        }
+    }
+}
+
+impl SkinConfig {
+    fn check(&self) -> Result<(), SkinError> {
+        let ok = (8..=MAX_RESOLUTION).contains(&self.resolution)
+            && (1..=4).contains(&self.max_influences)
+            && self.falloff.is_finite()
+            && self.falloff > 0.0
+            && self.softness.is_finite()
+            && self.softness >= 0.0
+            && (0.0..0.5).contains(&self.min_weight)
+            && self.outside_margin.is_finite()
+            && self.outside_margin >= 0.0;
+        if ok {
+            Ok(())
+        } else {
+            Err(SkinError::BadConfig(format!("{self:?}")))
+        }
+    }
+}
+
+/// Why skinning was refused. Each variant has a stable [`code`](SkinError::code).
+#[derive(Debug, thiserror::Error, PartialEq)]
+pub enum SkinError {
+    /// Codes `skeleton_empty`, `skeleton_too_many_bones`, `skeleton_not_a_tree` (a cycle
+    /// or a parent index out of order), `skeleton_non_finite`, `skeleton_duplicate_name`.
+    #[error("the skeleton is invalid: {0}")]
+    Skeleton(#[from] SkeletonError),
+    #[error("{outside} of {bones} joints lie far outside the mesh's bounding box; is the skeleton in the mesh's frame and units?")]
+    OutsideMesh { outside: usize, bones: usize },
+    #[error("the mesh has no triangles to skin")]
+    EmptyMesh,
+    #[error("the mesh has a NaN or infinite vertex position")]
+    NonFiniteMesh,
+    #[error("triangle {0} names a vertex the mesh does not have")]
+    BadTriangle(usize),
+    #[error("invalid skinning configuration: {0}")]
+    BadConfig(String),
+}
+
+impl SkinError {
+    pub fn code(&self) -> &'static str {
+        match self {
+            SkinError::Skeleton(e) => e.code(),
+            SkinError::OutsideMesh { .. } => "skeleton_outside_mesh",
+            SkinError::EmptyMesh => "skin_empty_mesh",
+            SkinError::NonFiniteMesh => "skin_non_finite_mesh",
+            SkinError::BadTriangle(_) => "skin_bad_triangle",
+            SkinError::BadConfig(_) => "skin_bad_config",
+        }
+    }
+}
+
+/// Where the time of one [`skin_timed`] call went, in milliseconds.
+#[derive(Clone, Copy, Debug, Default, Serialize)]
+pub struct SkinTimings {
+    pub voxelize_ms: f64,
+    pub geodesic_ms: f64,
+    pub weights_ms: f64,
+    pub solid_cells: usize,
+    pub parts: usize,
+}
+
+/// Skin weights for every vertex of `mesh`, bound to `skeleton` (bones in the mesh's
+/// frame, as [`crate::mesh::load`] and [`crate::rig::groundtruth::extract`] give them).
+///
+/// Every vertex gets 1 to `cfg.max_influences` (bone index, weight) pairs with positive
+/// weights summing to 1; none is left unweighted. The skeleton is checked first: see
+/// [`SkinError`] for what is refused. Deterministic: equal inputs give equal weights.
+pub fn skin(mesh: &Mesh, skeleton: &Skeleton, cfg: &SkinConfig) -> Result<SkinWeights, SkinError> {
+    skin_timed(mesh, skeleton, cfg).map(|(w, _)| w)
+}
+
+/// How a part of the mesh chooses its bones.
+enum Binding {
+    /// Only these bones (they pass through the part).
+    Bones(Vec<bool>),
+    /// Whatever bones reach it through the volume.
+    Reachable,
+    /// This bone alone.
+    Rigid(u32),
+}
+
+/// [`skin`], also reporting where the time went.
+pub fn skin_timed(
+    mesh: &Mesh,
+    skeleton: &Skeleton,
+    cfg: &SkinConfig,
+) -> Result<(SkinWeights, SkinTimings), SkinError> {
+    validate::check(mesh, skeleton, cfg)?;
+    let mut times = SkinTimings::default();
+    let t0 = Instant::now();
+    let pos = &mesh.positions;
+    let (lo, hi) = mesh.bounds();
+    let grid = Grid::around(lo, hi, cfg.resolution);
+    let whole = Region::whole(&grid);
+    let solid = voxel::solid(pos, &mesh.triangles, 0..mesh.triangles.len(), &grid, &whole);
+    let volume = Volume::new(grid, solid);
+    let parts = components::components(pos, &mesh.triangles);
+    let part_solids: Vec<(Region, Vec<bool>)> = parts
+        .triangles
+        .iter()
+        .map(|tris| {
+            let (plo, phi) = tris.iter().flat_map(|&t| mesh.triangles[t]).fold(
+                (Vec3::splat(f32::MAX), Vec3::splat(f32::MIN)),
+                |(a, b), i| (a.min(pos[i as usize]), b.max(pos[i as usize])),
+            );
+            let region = Region::around(&volume.grid, plo, phi, 2);
+            let s = voxel::solid(
+                pos,
+                &mesh.triangles,
+                tris.iter().copied(),
+                &volume.grid,
+                &region,
+            );
+            (region, s)
+        })
+        .collect();
+    times.voxelize_ms = ms(t0);
+    times.solid_cells = volume.cells.len();
+    times.parts = parts.triangles.len();
+
+    let t1 = Instant::now();
+    let segs: Vec<Segment> = skeleton
+        .bones
+        .iter()
+        .map(|b| Segment {
+            a: b.head,
+            b: b.tail,
+        })
+        .collect();
+    let mut stamp = Stamp::new(volume.solid.len());
+    let on_bone: Vec<Vec<(u32, f32)>> = segs
+        .iter()
+        .map(|s| volume.cells_on(s, &mut stamp))
+        .collect();
+    let seeds: Vec<Vec<(u32, u32)>> = segs
+        .iter()
+        .zip(&on_bone)
+        .map(|(s, on)| volume.seeds(s, on))
+        .collect();
+    let mut seeded_blob = vec![false; volume.cells.len().max(1)];
+    for &(c, _) in seeds.iter().flatten() {
+        if let Some(b) = seeded_blob.get_mut(volume.blob[c as usize] as usize) {
+            *b = true;
+        }
+    }
+    let bindings: Vec<Binding> = part_solids
+        .iter()
+        .enumerate()
+        .map(|(p, (region, s))| {
+            let through: Vec<bool> = on_bone
+                .iter()
+                .map(|cells| {
+                    cells.iter().any(|&(c, _)| {
+                        region
+                            .local(volume.grid.coords(c as usize))
+                            .is_some_and(|l| s[l])
+                    })
+                })
+                .collect();
+            if through.iter().any(|&t| t) {
+                return Binding::Bones(through);
+            }
+            let first = mesh.triangles[parts.triangles[p][0]][0] as usize;
+            let blob = Stencils::new(&volume, &pos[first..=first])
+                .cells
+                .first()
+                .map(|&(c, _)| volume.blob[c as usize]);
+            match blob.and_then(|b| seeded_blob.get(b as usize)) {
+                Some(true) => Binding::Reachable,
+                _ => Binding::Rigid(nearest_on_average(
+                    pos,
+                    &mesh.triangles,
+                    &parts.triangles[p],
+                    &segs,
+                )),
+            }
+        })
+        .collect();
+
+    let stencils = Stencils::new(&volume, pos);
+    let k = cfg.max_influences + 2;
+    let mut nearest: Vec<Vec<(u32, f32)>> = vec![Vec::new(); pos.len()];
+    let (mut dist, mut ring) = (Vec::new(), Ring::default());
+    for (b, bone_seeds) in seeds.iter().enumerate() {
+        volume.field(bone_seeds, &mut dist, &mut ring);
+        for (v, cands) in nearest.iter_mut().enumerate() {
+            let allowed = match parts.of_vertex[v].map(|p| &bindings[p as usize]) {
+                Some(Binding::Bones(ok)) => ok[b],
+                Some(Binding::Reachable) => true,
+                _ => false,
+            };
+            if allowed {
+                if let Some(d) = stencils.distance(&volume, v, &dist) {
+                    insert_nearest(cands, (b as u32, d), k);
+                }
+            }
+        }
+    }
+    times.geodesic_ms = ms(t1);
+
+    let t2 = Instant::now();
+    let mut out = SkinWeights {
+        per_vertex: Vec::with_capacity(pos.len()),
+    };
+    for (v, cands) in nearest.iter_mut().enumerate() {
+        let binding = parts.of_vertex[v].map(|p| &bindings[p as usize]);
+        if let Some(Binding::Rigid(b)) = binding {
+            out.per_vertex.push(vec![(*b, 1.0)]);
+            continue;
+        }
+        if cands.is_empty() {
+            // Not reached through the volume: straight-line distance to the bones the
+            // part may use.
+            for (b, s) in segs.iter().enumerate() {
+                if !matches!(binding, Some(Binding::Bones(ok)) if !ok[b]) {
+                    insert_nearest(cands, (b as u32, s.distance(pos[v])), k);
+                }
+            }
+        }
+        out.per_vertex
+            .push(weights::from_distances(cands, cfg, volume.grid.cell));
+    }
+    out.normalize();
+    times.weights_ms = ms(t2);
+    Ok((out, times))
+}
+
+fn ms(t: Instant) -> f64 {
+    t.elapsed().as_secs_f64() * 1e3
+}
+
+/// Keeps `list` as the `k` nearest, sorted nearest first.
+fn insert_nearest(list: &mut Vec<(u32, f32)>, item: (u32, f32), k: usize) {
+    if list.len() == k && list.last().is_some_and(|l| l.1 <= item.1) {
+        return;
+    }
+    let at = list.partition_point(|x| x.1 <= item.1);
+    list.insert(at, item);
+    list.truncate(k);
+}
+
+/// The bone whose segment is nearest to the part's vertices on average.
+fn nearest_on_average(
+    pos: &[Vec3],
+    triangles: &[[u32; 3]],
+    tris: &[usize],
+    segs: &[Segment],
+) -> u32 {
+    let mut verts: Vec<u32> = tris.iter().flat_map(|&t| triangles[t]).collect();
+    verts.sort_unstable();
+    verts.dedup();
+    // A few hundred vertices spread over the part decide as well as all of them.
+    let step = (verts.len() / 256).max(1);
+    let sample: Vec<Vec3> = verts
+        .iter()
+        .step_by(step)
+        .map(|&v| pos[v as usize])
+        .collect();
+    (0..segs.len())
+        .map(|b| {
+            let mean =
+                sample.iter().map(|&p| segs[b].distance(p)).sum::<f32>() / sample.len() as f32;
+            (b as u32, mean)
+        })
+        .min_by(|a, b| a.1.total_cmp(&b.1))
+        .map_or(0, |x| x.0)
+}

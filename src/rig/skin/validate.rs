@@ -1,0 +1,43 @@
+//! Refuses skeletons and meshes that cannot be skinned, before any work is done.
+
+use super::{SkinConfig, SkinError};
+use crate::mesh::Mesh;
+use crate::rig::Skeleton;
+
+/// Checks the skeleton's own invariants ([`Skeleton::validate`]), the mesh, and that the
+/// skeleton sits on the mesh: a rig in other units or another frame puts most joints far
+/// outside the mesh's box, and skinning it would bind everything to whichever bone
+/// happens to be nearest.
+pub fn check(mesh: &Mesh, skeleton: &Skeleton, cfg: &SkinConfig) -> Result<(), SkinError> {
+    cfg.check()?;
+    skeleton.validate(cfg.max_bones)?;
+    if mesh.positions.is_empty() || mesh.triangles.is_empty() {
+        return Err(SkinError::EmptyMesh);
+    }
+    if mesh.positions.iter().any(|p| !p.is_finite()) {
+        return Err(SkinError::NonFiniteMesh);
+    }
+    let n = mesh.positions.len() as u32;
+    if let Some(t) = mesh
+        .triangles
+        .iter()
+        .position(|t| t.iter().any(|&i| i >= n))
+    {
+        return Err(SkinError::BadTriangle(t));
+    }
+    let (lo, hi) = mesh.bounds();
+    let margin = (hi - lo).max_element() * cfg.outside_margin;
+    let (lo, hi) = (lo - margin, hi + margin);
+    let outside = skeleton
+        .bones
+        .iter()
+        .filter(|b| b.head.cmplt(lo).any() || b.head.cmpgt(hi).any())
+        .count();
+    if outside * 2 > skeleton.len() {
+        return Err(SkinError::OutsideMesh {
+            outside,
+            bones: skeleton.len(),
+        });
+    }
+    Ok(())
+}

@@ -1,0 +1,306 @@
+//! Solid voxelization: which cells of a regular grid lie on or inside the mesh.
+//!
+//! Surface cells are those a triangle overlaps (an exact triangle–box test, so the
+//! surface has no gaps a 6-connected fill could slip through). Everything a flood fill
+//! from the grid border reaches without crossing the surface is outside; the rest is
+//! inside. An open mesh lets the fill in, which leaves just its shell: distances then
+//! run along the surface instead of through the volume, which degrades gracefully.
+
+use glam::Vec3;
+
+/// Empty cells kept around the mesh, so the border is always outside and every solid
+/// cell's 26 neighbours are in the grid.
+const PAD: usize = 2;
+
+/// A regular grid of cubes of side `cell`, the first one's corner at `origin`.
+#[derive(Clone, Debug)]
+pub struct Grid {
+    pub origin: Vec3,
+    pub cell: f32,
+    pub dims: [usize; 3],
+}
+
+impl Grid {
+    /// A grid over the box `lo`–`hi` with `resolution` cells along its longest side.
+    pub fn around(lo: Vec3, hi: Vec3, resolution: usize) -> Grid {
+        let extent = (hi - lo).max_element().max(1e-6);
+        let cell = extent / resolution.max(1) as f32;
+        let dims = ((hi - lo) / cell)
+            .to_array()
+            .map(|n| n.ceil().max(1.0) as usize + 2 * PAD);
+        Grid {
+            origin: lo - Vec3::splat(PAD as f32 * cell),
+            cell,
+            dims,
+        }
+    }
+
+    pub fn index(&self, c: [usize; 3]) -> usize {
+        c[0] + self.dims[0] * (c[1] + self.dims[1] * c[2])
+    }
+
+    pub fn coords(&self, i: usize) -> [usize; 3] {
+        let (nx, ny) = (self.dims[0], self.dims[1]);
+        [i % nx, (i / nx) % ny, i / (nx * ny)]
+    }
+
+    pub fn center(&self, c: [usize; 3]) -> Vec3 {
+        self.origin + (Vec3::new(c[0] as f32, c[1] as f32, c[2] as f32) + 0.5) * self.cell
+    }
+
+    /// The cell holding `p`, clamped into the grid.
+    pub fn cell_of(&self, p: Vec3) -> [usize; 3] {
+        let k = ((p - self.origin) / self.cell).floor();
+        let clamp = |v: f32, n: usize| (v.max(0.0) as usize).min(n - 1);
+        [
+            clamp(k.x, self.dims[0]),
+            clamp(k.y, self.dims[1]),
+            clamp(k.z, self.dims[2]),
+        ]
+    }
+
+    /// Index offsets of the 26 neighbours, with their step lengths in cells.
+    pub fn neighbour_offsets(&self) -> Vec<(isize, f32)> {
+        let (sx, sy) = (1isize, self.dims[0] as isize);
+        let sz = sy * self.dims[1] as isize;
+        let mut out = Vec::with_capacity(26);
+        for dz in -1isize..=1 {
+            for dy in -1isize..=1 {
+                for dx in -1isize..=1 {
+                    let n = dx.abs() + dy.abs() + dz.abs();
+                    if n > 0 {
+                        out.push((dx * sx + dy * sy + dz * sz, (n as f32).sqrt()));
+                    }
+                }
+            }
+        }
+        out
+    }
+}
+
+/// A box of cells `lo .. lo + dims` inside a [`Grid`].
+#[derive(Clone, Copy, Debug)]
+pub struct Region {
+    pub lo: [usize; 3],
+    pub dims: [usize; 3],
+}
+
+impl Region {
+    pub fn whole(grid: &Grid) -> Region {
+        Region {
+            lo: [0; 3],
+            dims: grid.dims,
+        }
+    }
+
+    /// The cells overlapping `lo`–`hi`, grown by `margin` cells and clipped to the grid.
+    pub fn around(grid: &Grid, lo: Vec3, hi: Vec3, margin: usize) -> Region {
+        let a = grid.cell_of(lo);
+        let b = grid.cell_of(hi);
+        let mut r = Region {
+            lo: [0; 3],
+            dims: [0; 3],
+        };
+        for k in 0..3 {
+            let l = a[k].saturating_sub(margin);
+            let h = (b[k] + margin).min(grid.dims[k] - 1);
+            r.lo[k] = l;
+            r.dims[k] = h - l + 1;
+        }
+        r
+    }
+
+    pub fn len(&self) -> usize {
+        self.dims[0] * self.dims[1] * self.dims[2]
+    }
+
+    /// Index within the region of a grid cell, or None when the cell is outside it.
+    pub fn local(&self, c: [usize; 3]) -> Option<usize> {
+        let mut l = [0; 3];
+        for k in 0..3 {
+            l[k] = c[k].checked_sub(self.lo[k]).filter(|&v| v < self.dims[k])?;
+        }
+        Some(l[0] + self.dims[0] * (l[1] + self.dims[1] * l[2]))
+    }
+}
+
+/// Solid cells (surface and enclosed interior) of the triangles `tris` within `region`,
+/// one flag per region cell. The region must leave a layer of empty cells around the
+/// triangles for the outside fill to start from.
+pub fn solid(
+    positions: &[Vec3],
+    triangles: &[[u32; 3]],
+    tris: impl IntoIterator<Item = usize>,
+    grid: &Grid,
+    region: &Region,
+) -> Vec<bool> {
+    let mut surface = vec![false; region.len()];
+    let half = Vec3::splat(grid.cell * 0.5);
+    for t in tris {
+        let [a, b, c] = triangles[t].map(|i| positions[i as usize]);
+        let lo = grid.cell_of(a.min(b).min(c));
+        let hi = grid.cell_of(a.max(b).max(c));
+        for z in lo[2]..=hi[2] {
+            for y in lo[1]..=hi[1] {
+                for x in lo[0]..=hi[0] {
+                    let Some(l) = region.local([x, y, z]) else {
+                        continue;
+                    };
+                    if !surface[l] && triangle_box_overlap(grid.center([x, y, z]), half, a, b, c) {
+                        surface[l] = true;
+                    }
+                }
+            }
+        }
+    }
+    // Outside: 6-connected fill from every border cell of the region.
+    let [nx, ny, nz] = region.dims;
+    let mut outside = vec![false; region.len()];
+    let mut stack = Vec::new();
+    let idx = |x: usize, y: usize, z: usize| x + nx * (y + ny * z);
+    for z in 0..nz {
+        for y in 0..ny {
+            for x in 0..nx {
+                let border =
+                    x == 0 || y == 0 || z == 0 || x + 1 == nx || y + 1 == ny || z + 1 == nz;
+                let i = idx(x, y, z);
+                if border && !surface[i] {
+                    outside[i] = true;
+                    stack.push((x, y, z));
+                }
+            }
+        }
+    }
+    while let Some((x, y, z)) = stack.pop() {
+        let mut visit = |x: usize, y: usize, z: usize| {
+            let i = idx(x, y, z);
+            if !surface[i] && !outside[i] {
+                outside[i] = true;
+                stack.push((x, y, z));
+            }
+        };
+        if x > 0 {
+            visit(x - 1, y, z);
+        }
+        if x + 1 < nx {
+            visit(x + 1, y, z);
+        }
+        if y > 0 {
+            visit(x, y - 1, z);
+        }
+        if y + 1 < ny {
+            visit(x, y + 1, z);
+        }
+        if z > 0 {
+            visit(x, y, z - 1);
+        }
+        if z + 1 < nz {
+            visit(x, y, z + 1);
+        }
+    }
+    outside.iter().map(|o| !o).collect()
+}
+
+/// Akenine-Möller's separating-axis test of a triangle against an axis-aligned box.
+/// The box is grown by a hair so triangles lying exactly on a cell face count for both
+/// cells, which keeps the surface watertight.
+fn triangle_box_overlap(center: Vec3, half: Vec3, a: Vec3, b: Vec3, c: Vec3) -> bool {
+    let h = half * (1.0 + 1e-4);
+    let v = [a - center, b - center, c - center];
+    let e = [v[1] - v[0], v[2] - v[1], v[0] - v[2]];
+    // The box's face normals.
+    for k in 0..3 {
+        let (lo, hi) = min_max(v.iter().map(|p| p[k]));
+        if lo > h[k] || hi < -h[k] {
+            return false;
+        }
+    }
+    // The triangle's plane.
+    let n = e[0].cross(e[1]);
+    let r = h.dot(n.abs());
+    if n.dot(v[0]).abs() > r {
+        return false;
+    }
+    // Cross products of edges with the box axes.
+    for edge in e {
+        for axis in [Vec3::X, Vec3::Y, Vec3::Z] {
+            let ax = axis.cross(edge);
+            if ax.length_squared() < 1e-30 {
+                continue;
+            }
+            let (lo, hi) = min_max(v.iter().map(|p| p.dot(ax)));
+            let r = h.dot(ax.abs());
+            if lo > r || hi < -r {
+                return false;
+            }
+        }
+    }
+    true
+}
+
+fn min_max(xs: impl Iterator<Item = f32>) -> (f32, f32) {
+    xs.fold((f32::INFINITY, f32::NEG_INFINITY), |(lo, hi), x| {
+        (lo.min(x), hi.max(x))
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A closed axis-aligned box mesh, 12 triangles.
+    pub(crate) fn cube(lo: Vec3, hi: Vec3) -> (Vec<Vec3>, Vec<[u32; 3]>) {
+        let p: Vec<Vec3> = (0..8)
+            .map(|i| {
+                Vec3::new(
+                    if i & 1 == 0 { lo.x } else { hi.x },
+                    if i & 2 == 0 { lo.y } else { hi.y },
+                    if i & 4 == 0 { lo.z } else { hi.z },
+                )
+            })
+            .collect();
+        let quads = [
+            [0, 2, 3, 1],
+            [4, 5, 7, 6],
+            [0, 1, 5, 4],
+            [2, 6, 7, 3],
+            [0, 4, 6, 2],
+            [1, 3, 7, 5],
+        ];
+        let t = quads
+            .iter()
+            .flat_map(|q| [[q[0], q[1], q[2]], [q[0], q[2], q[3]]])
+            .collect();
+        (p, t)
+    }
+
+    #[test]
+    fn a_closed_box_is_filled_and_an_open_one_is_a_shell() {
+        let (p, t) = cube(Vec3::ZERO, Vec3::ONE);
+        let grid = Grid::around(Vec3::ZERO, Vec3::ONE, 10);
+        let region = Region::whole(&grid);
+        let s = solid(&p, &t, 0..t.len(), &grid, &region);
+        let mid = grid.index(grid.cell_of(Vec3::splat(0.5)));
+        assert!(s[mid], "the middle of a closed box is solid");
+        assert!(!s[0], "the corner of the grid is outside");
+        // Without the top face, the fill gets in and only the walls stay solid.
+        let open: Vec<usize> = (0..t.len()).filter(|&i| !(i == 6 || i == 7)).collect();
+        let s = solid(&p, &t, open, &grid, &region);
+        assert!(!s[mid]);
+        let wall = grid.index(grid.cell_of(Vec3::new(0.0, 0.5, 0.5)));
+        assert!(s[wall]);
+    }
+
+    #[test]
+    fn box_test_matches_obvious_cases() {
+        let h = Vec3::splat(0.5);
+        let (a, b, c) = (
+            Vec3::new(-2.0, 0.0, -2.0),
+            Vec3::new(2.0, 0.0, -2.0),
+            Vec3::new(0.0, 0.0, 2.0),
+        );
+        assert!(triangle_box_overlap(Vec3::ZERO, h, a, b, c));
+        assert!(!triangle_box_overlap(Vec3::new(0.0, 0.7, 0.0), h, a, b, c));
+        assert!(!triangle_box_overlap(Vec3::new(3.0, 0.0, 1.9), h, a, b, c));
+    }
+}
