@@ -1,5 +1,5 @@
 //! `rigserve bench`: decoder throughput per batch size, with and without the KV cache,
-//! and the end-to-end time of one skeleton prediction.
+//! the end-to-end time of one skeleton prediction, and the time of geometric skinning.
 
 use super::rig::ModelArgs;
 use super::LimitArgs;
@@ -7,6 +7,8 @@ use anyhow::Context;
 use rigserve::infer::{Backend, BackendConfig, MetricsSnapshot, SamplingParams, SkeletonRequest};
 use rigserve::mesh::{self, sample::SplitMix64};
 use rigserve::predict::{mesh_samples, predict_from_samples, PredictConfig, MODEL_POINTS};
+use rigserve::rig::groundtruth::extract;
+use rigserve::rig::skin::{skin_timed, SkinTimings};
 use rigserve::rig::tokenizer::{BOS, CLS_NONE};
 use serde::Serialize;
 use std::path::PathBuf;
@@ -20,6 +22,9 @@ pub enum BenchCommand {
     Decode(DecodeArgs),
     /// One mesh end to end: sampling, encoder, best-of-N decode, scoring.
     Skeleton(SkeletonArgs),
+    /// Geometric skinning of one rigged mesh with its own skeleton: voxelization,
+    /// geodesic distances and weights, timed separately.
+    Skin(SkinArgs),
 }
 
 #[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
@@ -72,11 +77,88 @@ pub struct SkeletonArgs {
     pub limits: LimitArgs,
 }
 
+#[derive(clap::Args, Debug)]
+pub struct SkinArgs {
+    /// A rigged file (its skeleton is skinned); the default is a ~22k-vertex, 49-bone
+    /// artist rig of the data set.
+    #[arg(long, default_value = "../shared/rigs/modular_men__King.glb")]
+    pub input: PathBuf,
+    /// Timed runs after one warm-up run.
+    #[arg(long, default_value_t = 5)]
+    pub repeat: usize,
+    #[arg(long)]
+    pub json: bool,
+    #[command(flatten)]
+    pub skin: super::rig::SkinArgs,
+    #[command(flatten)]
+    pub limits: LimitArgs,
+}
+
 pub fn run(cmd: BenchCommand) -> anyhow::Result<()> {
     match cmd {
         BenchCommand::Decode(a) => decode(a),
         BenchCommand::Skeleton(a) => skeleton(a),
+        BenchCommand::Skin(a) => skin(a),
     }
+}
+
+#[derive(Serialize)]
+struct SkinReport {
+    input: String,
+    vertices: usize,
+    triangles: usize,
+    bones: usize,
+    voxels: usize,
+    runs: Vec<SkinTimings>,
+    mean: SkinTimings,
+    mean_total_ms: f64,
+}
+
+fn skin(a: SkinArgs) -> anyhow::Result<()> {
+    let bytes =
+        std::fs::read(&a.input).with_context(|| format!("reading {}", a.input.display()))?;
+    let asset = mesh::load(&bytes, &a.limits.limits())
+        .map_err(|e| anyhow::anyhow!("{e} [{}]", e.code()))?;
+    let skeleton = extract(&asset)
+        .map_err(|e| anyhow::anyhow!("{e} [{}]", e.code()))?
+        .ok_or_else(|| anyhow::anyhow!("{} has no skeleton [no_skin]", a.input.display()))?
+        .skeleton;
+    let cfg = a.skin.config();
+    let mut runs = Vec::new();
+    for r in 0..=a.repeat {
+        let (_, t) = skin_timed(&asset.mesh, &skeleton, &cfg)
+            .map_err(|e| anyhow::anyhow!("{e} [{}]", e.code()))?;
+        if r > 0 {
+            runs.push(t);
+        }
+    }
+    let n = runs.len().max(1) as f64;
+    let mean = SkinTimings {
+        voxelize_ms: runs.iter().map(|t| t.voxelize_ms).sum::<f64>() / n,
+        geodesic_ms: runs.iter().map(|t| t.geodesic_ms).sum::<f64>() / n,
+        weights_ms: runs.iter().map(|t| t.weights_ms).sum::<f64>() / n,
+        ..runs.last().copied().unwrap_or_default()
+    };
+    let report = SkinReport {
+        input: a.input.display().to_string(),
+        vertices: asset.mesh.positions.len(),
+        triangles: asset.mesh.triangles.len(),
+        bones: skeleton.len(),
+        voxels: cfg.resolution,
+        runs,
+        mean,
+        mean_total_ms: mean.voxelize_ms + mean.geodesic_ms + mean.weights_ms,
+    };
+    if a.json {
+        println!("{}", serde_json::to_string_pretty(&report)?);
+    } else {
+        eprintln!(
+            "{}: {} vertices, {} bones: {:.1} ms (voxelize {:.1}, geodesic {:.1}, weights {:.1}; {} solid voxels, {} parts)",
+            report.input, report.vertices, report.bones, report.mean_total_ms, mean.voxelize_ms,
+            mean.geodesic_ms, mean.weights_ms, mean.solid_cells, mean.parts
+        );
+    }
+    Ok(())
 }
 
 #[derive(Serialize)]

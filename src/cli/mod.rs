@@ -60,7 +60,7 @@ pub enum Command {
     Eval(eval::EvalArgs),
     /// Writes training arrays and token sequences from rigged meshes (see `training/`).
     Dataset(DatasetArgs),
-    /// Predicts a skeleton for a mesh with the skeleton model.
+    /// Rigs a mesh: skeleton (predicted, given, or the input's own) and skin weights.
     Rig(rig::RigArgs),
     /// Measures model throughput and latency.
     #[command(subcommand)]

@@ -1,14 +1,17 @@
-//! `rigserve rig`: mesh in, skeleton (bone tree JSON) out.
+//! `rigserve rig`: mesh in, rigged GLB out (or, with `--skeleton-only`, the bone tree).
 
 use super::LimitArgs;
 use anyhow::Context;
+use rigserve::export::{export_glb, BoneTreeError, ExportOptions};
 use rigserve::infer::{
     Backend, BackendConfig, ModelFiles, Runtime, SamplingParams, SessionConfig, SkeletonModel,
     Variant,
 };
 use rigserve::mesh;
 use rigserve::predict::{predict_skeleton, PredictConfig};
-use rigserve::rig::skin::SkinConfig;
+use rigserve::rig::groundtruth::extract;
+use rigserve::rig::skin::{skin_timed, SkinConfig};
+use rigserve::rig::Skeleton;
 use std::path::{Path, PathBuf};
 
 /// Where the model and ONNX Runtime come from (shared by `rig` and `bench`).
@@ -124,11 +127,19 @@ impl SkinArgs {
 pub struct RigArgs {
     /// The mesh (GLB, glTF, VRM or OBJ).
     pub input: PathBuf,
-    /// Predict the skeleton only (skinning is not part of this command yet, so this is
-    /// required).
-    #[arg(long)]
+    /// Where to write the rigged GLB (skeleton and skin weights).
+    #[arg(short = 'o', long = "out")]
+    pub out: Option<PathBuf>,
+    /// Predict the skeleton only and write its bone tree (no skinning, no GLB).
+    #[arg(long, conflicts_with_all = ["skeleton", "skeleton_from_input", "out"])]
     pub skeleton_only: bool,
-    /// Where to write the bone tree JSON; standard output when absent.
+    /// Skin this skeleton (a bone tree JSON in the mesh's frame) instead of predicting one.
+    #[arg(long, conflicts_with = "skeleton_from_input")]
+    pub skeleton: Option<PathBuf>,
+    /// Re-skin the skeleton the input file already has.
+    #[arg(long)]
+    pub skeleton_from_input: bool,
+    /// Where to write the bone tree JSON; with --skeleton-only, standard output when absent.
     #[arg(long)]
     pub bones: Option<PathBuf>,
     #[command(flatten)]
@@ -140,42 +151,37 @@ pub struct RigArgs {
     #[arg(long)]
     pub keep: Option<PathBuf>,
     #[command(flatten)]
+    pub skin: SkinArgs,
+    #[command(flatten)]
     pub model: ModelArgs,
     #[command(flatten)]
     pub limits: LimitArgs,
 }
 
-fn read_keep(path: &Path) -> anyhow::Result<rigserve::rig::Skeleton> {
+/// Reads a bone tree JSON. A tree that parses but breaks the skeleton's invariants is
+/// reported with the skeleton's own code (`skeleton_empty`, `skeleton_not_a_tree`, …).
+fn read_skeleton(path: &Path) -> anyhow::Result<Skeleton> {
     let text =
         std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
-    let value: serde_json::Value =
-        serde_json::from_str(&text).with_context(|| format!("{} is not JSON", path.display()))?;
-    rigserve::export::parse_bone_tree(&value)
-        .map_err(|e| anyhow::anyhow!("{}: {e} [{}]", path.display(), e.code()))
+    let value: serde_json::Value = serde_json::from_str(&text)
+        .map_err(|e| anyhow::anyhow!("{}: not JSON: {e} [bone_tree_malformed]", path.display()))?;
+    rigserve::export::parse_bone_tree(&value).map_err(|e| match e {
+        BoneTreeError::Skeleton(inner) => {
+            anyhow::anyhow!("{}: {inner} [{}]", path.display(), inner.code())
+        }
+        e => anyhow::anyhow!("{}: {e} [{}]", path.display(), e.code()),
+    })
 }
 
-pub fn run(a: RigArgs) -> anyhow::Result<()> {
-    if !a.skeleton_only {
-        anyhow::bail!("rig: skinning is not available in this command yet; pass --skeleton-only to predict the skeleton");
-    }
-    let bytes =
-        std::fs::read(&a.input).with_context(|| format!("reading {}", a.input.display()))?;
-    let asset = mesh::load(&bytes, &a.limits.limits())
-        .map_err(|e| anyhow::anyhow!("{e} [{}]", e.code()))?;
-    let keep = a.keep.as_deref().map(read_keep).transpose()?;
+fn predict(a: &RigArgs, mesh: &mesh::Mesh) -> anyhow::Result<Skeleton> {
+    let keep = a.keep.as_deref().map(read_skeleton).transpose()?;
     let backend = a.model.backend(BackendConfig {
         max_batch: a.decode.samples.max(1),
         kv_cache: true,
     })?;
     let cfg = a.decode.predict_config(a.category.clone());
-    let pred = predict_skeleton(&backend, &asset.mesh, &cfg, keep.as_ref())
+    let pred = predict_skeleton(&backend, mesh, &cfg, keep.as_ref())
         .map_err(|e| anyhow::anyhow!("{e} [{}]", e.code()))?;
-    let tree = serde_json::to_string_pretty(&rigserve::export::bone_tree(&pred.skeleton))?;
-    match &a.bones {
-        Some(out) => std::fs::write(out, tree + "\n")
-            .with_context(|| format!("writing {}", out.display()))?,
-        None => println!("{tree}"),
-    }
     let c = &pred.candidates[pred.chosen];
     let s = c.score.expect("the chosen candidate is scored");
     eprintln!(
@@ -189,6 +195,58 @@ pub fn run(a: RigArgs) -> anyhow::Result<()> {
         s.coverage,
         s.outside,
         s.bbox_excess
+    );
+    Ok(pred.skeleton)
+}
+
+pub fn run(a: RigArgs) -> anyhow::Result<()> {
+    if !a.skeleton_only && a.out.is_none() {
+        anyhow::bail!("rig: say where the rigged GLB goes with -o OUT.glb, or pass --skeleton-only to predict the skeleton alone");
+    }
+    let bytes =
+        std::fs::read(&a.input).with_context(|| format!("reading {}", a.input.display()))?;
+    let asset = mesh::load(&bytes, &a.limits.limits())
+        .map_err(|e| anyhow::anyhow!("{e} [{}]", e.code()))?;
+    let skeleton = if let Some(path) = &a.skeleton {
+        read_skeleton(path)?
+    } else if a.skeleton_from_input {
+        extract(&asset)
+            .map_err(|e| anyhow::anyhow!("{e} [{}]", e.code()))?
+            .ok_or_else(|| {
+                anyhow::anyhow!(
+                    "{} has no skinned mesh to take a skeleton from [no_skin]",
+                    a.input.display()
+                )
+            })?
+            .skeleton
+    } else {
+        predict(&a, &asset.mesh)?
+    };
+    let tree = serde_json::to_string_pretty(&rigserve::export::bone_tree(&skeleton))?;
+    match (&a.bones, a.skeleton_only) {
+        (Some(out), _) => std::fs::write(out, tree + "\n")
+            .with_context(|| format!("writing {}", out.display()))?,
+        (None, true) => println!("{tree}"),
+        (None, false) => {}
+    }
+    let Some(out) = &a.out else {
+        return Ok(());
+    };
+    let (weights, t) = skin_timed(&asset.mesh, &skeleton, &a.skin.config())
+        .map_err(|e| anyhow::anyhow!("{e} [{}]", e.code()))?;
+    let glb = export_glb(&asset, &skeleton, &weights, &ExportOptions::default())
+        .map_err(|e| anyhow::anyhow!("{e} [{}]", e.code()))?;
+    std::fs::write(out, glb).with_context(|| format!("writing {}", out.display()))?;
+    eprintln!(
+        "{}: skinned {} vertices to {} bones in {:.0} ms (voxels {:.0}, geodesic {:.0}, weights {:.0}) -> {}",
+        a.input.display(),
+        weights.per_vertex.len(),
+        skeleton.len(),
+        t.voxelize_ms + t.geodesic_ms + t.weights_ms,
+        t.voxelize_ms,
+        t.geodesic_ms,
+        t.weights_ms,
+        out.display()
     );
     Ok(())
 }
