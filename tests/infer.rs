@@ -96,6 +96,7 @@ fn request(points: &Arc<[[f32; 6]]>, prompt: Vec<u32>, seed: u64) -> SkeletonReq
         },
         max_bones: 64,
         max_tokens: 160,
+        no_templates: false,
         ignore_eos: false,
     }
 }

@@ -225,6 +225,7 @@ fn run_batch(
             },
             max_bones: usize::MAX,
             max_tokens: 2 + tokens,
+            no_templates: false,
             ignore_eos: true,
         })
         .collect();

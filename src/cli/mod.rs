@@ -5,6 +5,7 @@ mod dataset;
 mod eval;
 mod inspect;
 mod rig;
+mod serve;
 
 use clap::{Parser, Subcommand};
 use rigserve::mesh::Limits;
@@ -62,6 +63,8 @@ pub enum Command {
     Dataset(DatasetArgs),
     /// Rigs a mesh: skeleton (predicted, given, or the input's own) and skin weights.
     Rig(rig::RigArgs),
+    /// Runs the HTTP service (embedded SQLite + local files under --data-dir).
+    Serve(serve::ServeArgs),
     /// Measures model throughput and latency.
     #[command(subcommand)]
     Bench(bench::BenchCommand),
@@ -112,6 +115,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
             )
         }
         Command::Rig(a) => rig::run(a),
+        Command::Serve(a) => serve::run(a),
         Command::Bench(c) => bench::run(c),
         Command::Eval(a) => eval::run(a),
     }

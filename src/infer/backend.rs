@@ -38,6 +38,8 @@ pub struct SkeletonRequest {
     /// Longest sequence, prompt included; 0, or more than the model allows, means the
     /// model's `max_tokens`.
     pub max_tokens: usize,
+    /// Refuse template blocks (`<mixamo:body>`): a free-form skeleton was asked for.
+    pub no_templates: bool,
     /// Benchmarks only: never choose `<eos>` (while anything else is allowed), so the item
     /// runs to exactly `max_tokens`. The result may then not detokenize.
     pub ignore_eos: bool,
@@ -229,6 +231,23 @@ impl Pending {
     pub fn wait(self) -> Result<Generation, InferError> {
         self.rx.recv().unwrap_or(Err(InferError::BackendGone))
     }
+
+    /// Like [`wait`](Pending::wait), but gives up (canceling the request) once `canceled`
+    /// says so; it is asked every few milliseconds.
+    pub fn wait_unless(self, canceled: &dyn Fn() -> bool) -> Result<Generation, InferError> {
+        loop {
+            match self.rx.recv_timeout(std::time::Duration::from_millis(20)) {
+                Ok(r) => return r,
+                Err(std::sync::mpsc::RecvTimeoutError::Disconnected) => {
+                    return Err(InferError::BackendGone)
+                }
+                Err(std::sync::mpsc::RecvTimeoutError::Timeout) if canceled() => {
+                    return Err(InferError::Canceled)
+                }
+                Err(std::sync::mpsc::RecvTimeoutError::Timeout) => {}
+            }
+        }
+    }
 }
 
 impl Drop for Pending {
@@ -368,8 +387,11 @@ impl Backend {
                 self.info.vocab_size
             )));
         }
-        let grammar = Grammar::from_prefix(r.max_bones, &r.prompt)
+        let mut grammar = Grammar::from_prefix(r.max_bones, &r.prompt)
             .map_err(|e| bad(format!("prompt rejected: {e}")))?;
+        if r.no_templates {
+            grammar = grammar.without_templates();
+        }
         if grammar.class_token().is_none() {
             return Err(bad(
                 "the prompt must start with <bos> and a class token".into()

@@ -35,6 +35,8 @@ pub enum InferError {
     NoAllowedToken { step: usize },
     #[error("the inference backend has shut down")]
     BackendGone,
+    #[error("the request was canceled")]
+    Canceled,
 }
 
 impl InferError {
@@ -53,6 +55,7 @@ impl InferError {
             InferError::OutputShape { .. } => "model_output_shape",
             InferError::NoAllowedToken { .. } => "no_allowed_token",
             InferError::BackendGone => "backend_gone",
+            InferError::Canceled => "canceled",
         }
     }
 

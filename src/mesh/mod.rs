@@ -17,7 +17,7 @@ pub use sample::{sample_surface, SurfaceSamples};
 use glam::{Mat4, Vec3};
 
 /// Caps that bound the work and memory any single upload can cost.
-#[derive(Clone, Debug)]
+#[derive(Clone, Copy, Debug)]
 pub struct Limits {
     pub max_bytes: u64,
     pub max_vertices: u64,

@@ -11,7 +11,7 @@ use crate::infer::{Backend, InferError, SamplingParams, SkeletonRequest};
 use crate::mesh::{sample_surface, Mesh, Normalization};
 use crate::rig::template::match_mixamo;
 use crate::rig::tokenizer::{
-    class_token, detokenize, tokenize_with_order, TokenizeError, BOS, EOS,
+    class_token, detokenize, tokenize_with_order, TokenizeError, BOS, EOS, MIXAMO_BODY,
 };
 use crate::rig::Skeleton;
 use score::{SkeletonScore, SurfaceModel};
@@ -21,7 +21,17 @@ use std::sync::Arc;
 /// Surface samples the model is fed (validation in training uses this many).
 pub const MODEL_POINTS: usize = 2048;
 
-#[derive(Clone, Debug)]
+/// `template` of a job: whether the Mixamo body template is left to the model, forced
+/// (the prompt opens the block), or refused by the grammar.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum TemplateMode {
+    #[default]
+    Auto,
+    Force,
+    Forbid,
+}
+
+#[derive(Clone)]
 pub struct PredictConfig {
     pub points: usize,
     /// Candidates decoded (best-of-N); 1 when sampling is greedy, since all would agree.
@@ -33,6 +43,10 @@ pub struct PredictConfig {
     pub max_bones: usize,
     /// Longest sequence, prompt included; 0 is the model's limit.
     pub max_tokens: usize,
+    /// Whether the skeleton may, must or must not follow the Mixamo body template.
+    pub template: TemplateMode,
+    /// Asked between waits; when it returns true, decoding stops with `canceled`.
+    pub canceled: Option<Arc<dyn Fn() -> bool + Send + Sync>>,
     /// Category hint for the class token (`humanoid`, `quadruped`, …); unknown or `None`
     /// gives `<cls:none>`.
     pub category: Option<String>,
@@ -52,6 +66,8 @@ impl Default for PredictConfig {
             },
             max_bones: 128,
             max_tokens: 0,
+            template: TemplateMode::Auto,
+            canceled: None,
             category: None,
         }
     }
@@ -202,6 +218,9 @@ pub fn predict_from_samples(
         .transpose()?;
     let prompt = match &kept {
         Some(k) => k.tokens.clone(),
+        None if cfg.template == TemplateMode::Force => {
+            vec![BOS, class_token(cfg.category.as_deref()), MIXAMO_BODY]
+        }
         None => vec![BOS, class_token(cfg.category.as_deref())],
     };
     let n = if cfg.sampling.is_greedy() {
@@ -221,6 +240,7 @@ pub fn predict_from_samples(
             },
             max_bones: cfg.max_bones,
             max_tokens: cfg.max_tokens,
+            no_templates: cfg.template == TemplateMode::Forbid,
             ignore_eos: false,
         })
         .collect();
@@ -228,7 +248,14 @@ pub fn predict_from_samples(
     let mut candidates = Vec::with_capacity(n);
     let mut skeletons = Vec::with_capacity(n);
     for (p, &seed) in pending.into_iter().zip(&seeds) {
-        let (tokens, skel, error) = match p.wait() {
+        let waited = match &cfg.canceled {
+            Some(c) => p.wait_unless(&**c),
+            None => p.wait(),
+        };
+        if let Err(InferError::Canceled) = waited {
+            return Err(InferError::Canceled.into());
+        }
+        let (tokens, skel, error) = match waited {
             Ok(g) => match detokenize(&g.tokens) {
                 Ok(s) => (g.tokens, Some(s), None),
                 Err(e) => (g.tokens, None, Some(e.to_string())),

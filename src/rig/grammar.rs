@@ -175,6 +175,8 @@ pub struct Grammar {
     first_hand: Option<Side>,
     /// Right after template blocks, before any other joint: another hand block may come.
     templates_open: bool,
+    /// `<mixamo:body>` is refused (a caller asked for a free-form skeleton).
+    no_templates: bool,
     /// Spring flag of the chain the last joint belongs to; `None` when the last joint is a
     /// template joint (or there is none), which cannot be continued.
     chain: Option<bool>,
@@ -194,6 +196,7 @@ impl Grammar {
             hands: 0,
             first_hand: None,
             templates_open: false,
+            no_templates: false,
             chain: None,
         }
     }
@@ -216,6 +219,12 @@ impl Grammar {
             g.advance(t).map_err(|error| PrefixError { pos, error })?;
         }
         Ok(g)
+    }
+
+    /// Refuses template blocks from now on (`template=none`).
+    pub fn without_templates(mut self) -> Self {
+        self.no_templates = true;
+        self
     }
 
     pub fn max_bones(&self) -> usize {
@@ -272,7 +281,7 @@ impl Grammar {
             t if is_coord(t) => n == 0 || self.chain.is_some(),
             SPRING => true,
             BRANCH => n > 0,
-            MIXAMO_BODY => n == 0,
+            MIXAMO_BODY => n == 0 && !self.no_templates,
             MIXAMO_HAND => self.templates_open && self.hands < 2,
             EOS => n > 0,
             _ => false,

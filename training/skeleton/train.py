@@ -21,6 +21,7 @@ import numpy as np
 import torch
 
 from .data import MixedSampler, SkeletonDataset, iterate_eval
+from .init_from_onnx import config_of, load_onnx_weights
 from .model import PAD, ModelConfig, SkeletonModel, loss_fn, tiny_config
 
 
@@ -31,6 +32,8 @@ def parse_args(argv=None):
     ap.add_argument("--val", default=None, help="held-out dataset dir, for monitoring only (e.g. the dev split)")
     ap.add_argument("--ckpt-dir", required=True)
     ap.add_argument("--resume", action="store_true", help="continue from <ckpt-dir>/last.pt if present")
+    ap.add_argument("--init-onnx", default=None,
+                    help="start a new run from the weights of an exported model folder (its model_config.json sets the size)")
     ap.add_argument("--steps", type=int, default=20000)
     ap.add_argument("--batch", type=int, default=32)
     ap.add_argument("--lr", type=float, default=3e-4)
@@ -140,6 +143,8 @@ def main(argv=None):
         resume = torch.load(last_path, map_location="cpu", weights_only=False)
         cfg = ModelConfig.from_dict(resume["config"])
         print(f"[train] resuming from {last_path} at step {resume['step']}")
+    elif a.init_onnx:
+        cfg = ModelConfig.from_dict(config_of(a.init_onnx))
     else:
         cfg = build_config(a)
 
@@ -167,6 +172,9 @@ def main(argv=None):
         sampler.set_state(resume["sampler_rng"])
         torch.set_rng_state(resume["torch_rng"])
         random.setstate(resume["py_rng"])
+    elif a.init_onnx:
+        load_onnx_weights(model, a.init_onnx)
+        print(f"[train] weights from {a.init_onnx}")
     n = model.num_params()
     print(f"[train] config {cfg.to_dict()}")
     print(f"[train] params encoder {n['encoder']:,} decoder {n['decoder']:,} total {n['total']:,}")

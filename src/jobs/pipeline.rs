@@ -1,0 +1,153 @@
+//! One job's rigging, start to end: load and validate the upload, predict (or take) the
+//! skeleton, skin it, export the GLB and the bone tree. Blocking: workers run it on the
+//! blocking pool, while the skeleton decode itself runs on the shared inference thread,
+//! batched with the other jobs' candidates.
+
+use super::model::{JobOptions, Stage, TemplateChoice};
+use crate::export::{bone_tree, export_glb, parse_bone_tree, ExportOptions};
+use crate::infer::Backend;
+use crate::mesh::{self, Limits};
+use crate::predict::{mesh_samples, predict_from_samples, PredictConfig, TemplateMode};
+use crate::rig::groundtruth;
+use crate::rig::skin::{skin, SkinConfig};
+use crate::rig::Skeleton;
+use std::sync::Arc;
+
+/// What the workers share: the skeleton model's backend and the settings of each stage.
+pub struct Engine {
+    /// `None` when no skeleton model is loaded: only `skin_only` jobs can run.
+    pub skeleton: Option<Backend>,
+    pub limits: Limits,
+    pub skin: SkinConfig,
+    /// Candidates per job at most (`samples` is clamped to it).
+    pub max_samples: usize,
+    /// Bones per skeleton at most (`max_bones` is clamped to it).
+    pub max_bones: usize,
+}
+
+/// A failed job's code and message.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct StageError {
+    pub code: String,
+    pub message: String,
+}
+
+impl StageError {
+    fn new(code: &str, message: impl std::fmt::Display) -> StageError {
+        StageError {
+            code: code.to_string(),
+            message: message.to_string(),
+        }
+    }
+}
+
+pub struct Rigged {
+    pub glb: Vec<u8>,
+    pub bone_tree: serde_json::Value,
+    pub bones: usize,
+}
+
+/// Progress callbacks and the cancel check of a running job.
+pub trait Progress {
+    fn stage(&self, stage: Stage);
+    /// True once the job was canceled (or its lease lost): stop at the next check.
+    fn canceled(&self) -> bool;
+}
+
+fn check(p: &dyn Progress) -> Result<(), StageError> {
+    if p.canceled() {
+        Err(StageError::new("canceled", "the job was canceled"))
+    } else {
+        Ok(())
+    }
+}
+
+/// The bone tree in `options.skeleton`, parsed.
+pub fn options_skeleton(options: &JobOptions) -> Result<Option<Skeleton>, StageError> {
+    options
+        .skeleton
+        .as_ref()
+        .map(|v| parse_bone_tree(v).map_err(|e| StageError::new(e.code(), e)))
+        .transpose()
+}
+
+pub fn run(
+    engine: &Engine,
+    input: &[u8],
+    options: &JobOptions,
+    progress: Arc<dyn Progress + Send + Sync>,
+) -> Result<Rigged, StageError> {
+    let p = &*progress;
+    p.stage(Stage::Validating);
+    let asset = mesh::load(input, &engine.limits).map_err(|e| StageError::new(e.code(), e))?;
+    let given = options_skeleton(options)?;
+    check(p)?;
+
+    let skeleton = if options.skin_only {
+        match given {
+            Some(s) => s,
+            None => groundtruth::extract(&asset)
+                .map_err(|e| StageError::new(e.code(), e))?
+                .map(|gt| gt.skeleton)
+                .ok_or_else(|| {
+                    StageError::new(
+                        "no_skeleton",
+                        "skin_only needs a skeleton: pass one in `skeleton` or upload a rigged file",
+                    )
+                })?,
+        }
+    } else {
+        let backend = engine.skeleton.as_ref().ok_or_else(|| {
+            StageError::new(
+                "model_unavailable",
+                "no skeleton model is loaded on this server; only skin_only jobs can run",
+            )
+        })?;
+        p.stage(Stage::Encoding);
+        let cfg = predict_config(engine, options, progress.clone());
+        let samples = mesh_samples(&asset.mesh, cfg.points, cfg.seed)
+            .map_err(|e| StageError::new(e.code(), e))?;
+        check(p)?;
+        p.stage(Stage::Skeleton);
+        predict_from_samples(backend, &samples, &cfg, given.as_ref())
+            .map_err(|e| StageError::new(e.code(), e))?
+            .skeleton
+    };
+    check(p)?;
+
+    p.stage(Stage::Skinning);
+    let weights =
+        skin(&asset.mesh, &skeleton, &engine.skin).map_err(|e| StageError::new(e.code(), e))?;
+    check(p)?;
+
+    p.stage(Stage::Exporting);
+    let glb = export_glb(&asset, &skeleton, &weights, &ExportOptions::default())
+        .map_err(|e| StageError::new(e.code(), e))?;
+    Ok(Rigged {
+        glb,
+        bone_tree: bone_tree(&skeleton),
+        bones: skeleton.len(),
+    })
+}
+
+fn predict_config(
+    engine: &Engine,
+    options: &JobOptions,
+    progress: Arc<dyn Progress + Send + Sync>,
+) -> PredictConfig {
+    let mut cfg = PredictConfig {
+        samples: options.samples.clamp(1, engine.max_samples.max(1)),
+        seed: options.seed,
+        max_bones: options.max_bones.clamp(1, engine.max_bones.max(1)),
+        category: options.category.clone(),
+        template: match options.template {
+            TemplateChoice::Auto => TemplateMode::Auto,
+            TemplateChoice::Mixamo => TemplateMode::Force,
+            TemplateChoice::None => TemplateMode::Forbid,
+        },
+        canceled: Some(Arc::new(move || progress.canceled())),
+        ..PredictConfig::default()
+    };
+    cfg.sampling.seed = options.seed;
+    cfg
+}
