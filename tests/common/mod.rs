@@ -1,7 +1,10 @@
 //! Helpers shared by the integration tests.
 #![allow(dead_code)]
 
-use std::path::PathBuf;
+use serde_json::Value;
+use std::path::{Path, PathBuf};
+use std::process::Command;
+use std::sync::Mutex;
 
 /// The artist-rigged data set beside the checkout, or None (with a message) when a
 /// fresh clone has no `../shared`.
@@ -37,5 +40,89 @@ pub fn manifest(dir: &std::path::Path) -> Vec<Entry> {
                 category: v[c].into(),
             }
         })
+        .collect()
+}
+
+// ---------------------------------------------------------------------------------------
+// The Khronos glTF validator (tools/validate.mjs).
+
+pub fn tools_dir() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tools")
+}
+
+/// Installs tools/node_modules once per test run; false (with a message) when npm cannot.
+pub fn node_tools_ready() -> bool {
+    static READY: Mutex<Option<bool>> = Mutex::new(None);
+    let mut ready = READY.lock().unwrap_or_else(|e| e.into_inner());
+    if let Some(r) = *ready {
+        return r;
+    }
+    let installed = |d: &Path| {
+        d.join("node_modules/gltf-validator/package.json").is_file()
+            && d.join("node_modules/ajv/package.json").is_file()
+    };
+    let dir = tools_dir();
+    let mut ok = installed(&dir);
+    if !ok {
+        for args in [&["ci"][..], &["install"][..]] {
+            let status = Command::new("npm")
+                .args(args)
+                .args(["--prefix", dir.to_str().unwrap(), "--no-audit", "--no-fund"])
+                .status();
+            if matches!(status, Ok(s) if s.success()) && installed(&dir) {
+                ok = true;
+                break;
+            }
+        }
+    }
+    if !ok {
+        eprintln!(
+            "SKIPPED: the glTF validator is not installed and `npm ci --prefix tools` failed"
+        );
+    }
+    *ready = Some(ok);
+    ok
+}
+
+/// Runs tools/validate.mjs on `files`; one report per file, or None when node is missing.
+/// Image files an input named by URI are not in the data set, so missing external
+/// resources are not counted (everything else about them is).
+pub fn validate(files: &[PathBuf]) -> Option<Vec<Value>> {
+    if !node_tools_ready() {
+        return None;
+    }
+    let out = Command::new("node")
+        .arg(tools_dir().join("validate.mjs"))
+        .arg("--allow-missing-external")
+        .arg("--bone-tree-schema")
+        .arg(PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("proto/bone_tree.schema.json"))
+        .args(files)
+        .output();
+    let out = match out {
+        Ok(o) => o,
+        Err(e) => {
+            eprintln!("SKIPPED: cannot run node: {e}");
+            return None;
+        }
+    };
+    let text = String::from_utf8_lossy(&out.stdout);
+    let reports: Vec<Value> = text
+        .lines()
+        .filter(|l| !l.trim().is_empty())
+        .map(|l| serde_json::from_str(l).unwrap_or_else(|e| panic!("validator output {l:?}: {e}")))
+        .collect();
+    assert_eq!(
+        reports.len(),
+        files.len(),
+        "validator: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    Some(reports)
+}
+
+pub fn errors_of(reports: &[Value]) -> Vec<&Value> {
+    reports
+        .iter()
+        .filter(|r| r["numErrors"].as_u64() != Some(0))
         .collect()
 }

@@ -58,10 +58,10 @@ pub struct SkinConfig {
 impl Default for SkinConfig {
     fn default() -> Self {
         SkinConfig {
-            resolution: 80,
+            resolution: 96,
             max_influences: 4,
-            falloff: 6.0,
-            softness: 1.0,
+            falloff: 10.0,
+            softness: 0.5,
             min_weight: 0.05,
             max_bones: crate::mesh::scene::MAX_JOINTS as usize,
             outside_margin: 0.25,

@@ -1,0 +1,401 @@
+//! Geometric skinning from the outside: the weights' invariants, geodesic distances that
+//! do not jump gaps, floating parts bound to one bone, refused skeletons with their
+//! codes, and `rigserve rig` writing GLBs the Khronos validator accepts.
+mod common;
+
+use glam::Vec3;
+use rigserve::export::bone_tree;
+use rigserve::mesh::{load, Limits, Mesh};
+use rigserve::rig::groundtruth::extract;
+use rigserve::rig::skin::{skin, SkinConfig};
+use rigserve::rig::{Bone, Skeleton, SkinWeights};
+use serde_json::{json, Value};
+use std::collections::{HashMap, HashSet};
+use std::path::Path;
+use std::process::{Command, Output};
+
+/// The closed surface of a union of cubes of side `size` (cell (i, j, k) spans
+/// `origin + [i, i+1]·size` and so on), one welded vertex per lattice point.
+fn cells_mesh(cells: &HashSet<[i32; 3]>, size: f32, origin: Vec3, mesh: &mut Mesh) {
+    let mut index: HashMap<[i32; 3], u32> = HashMap::new();
+    let mut vertex = |mesh: &mut Mesh, p: [i32; 3]| {
+        *index.entry(p).or_insert_with(|| {
+            mesh.positions
+                .push(origin + Vec3::new(p[0] as f32, p[1] as f32, p[2] as f32) * size);
+            mesh.positions.len() as u32 - 1
+        })
+    };
+    let mut sorted: Vec<_> = cells.iter().copied().collect();
+    sorted.sort();
+    for c in sorted {
+        for axis in 0..3 {
+            for side in [0, 1] {
+                let mut n = c;
+                n[axis] += if side == 1 { 1 } else { -1 };
+                if cells.contains(&n) {
+                    continue;
+                }
+                // The face's four corners, wound outwards.
+                let (u, v) = ((axis + 1) % 3, (axis + 2) % 3);
+                let corner = |du: i32, dv: i32| {
+                    let mut p = c;
+                    p[axis] += side;
+                    p[u] += du;
+                    p[v] += dv;
+                    p
+                };
+                let mut q = [corner(0, 0), corner(1, 0), corner(1, 1), corner(0, 1)];
+                if side == 0 {
+                    q.reverse();
+                }
+                let q = q.map(|p| vertex(mesh, p));
+                mesh.triangles.push([q[0], q[1], q[2]]);
+                mesh.triangles.push([q[0], q[2], q[3]]);
+            }
+        }
+    }
+}
+
+fn boxes(ranges: &[[std::ops::Range<i32>; 3]]) -> HashSet<[i32; 3]> {
+    let mut out = HashSet::new();
+    for [x, y, z] in ranges {
+        for i in x.clone() {
+            for j in y.clone() {
+                for k in z.clone() {
+                    out.insert([i, j, k]);
+                }
+            }
+        }
+    }
+    out
+}
+
+const CELL: f32 = 0.05;
+
+/// A Π: two legs 0.4 wide with a 0.05 gap, joined by a pelvis, all one welded part.
+/// Bones: hips across the pelvis, a leg bone down the middle of each leg.
+fn two_legs() -> (Mesh, Skeleton) {
+    let cells = boxes(&[
+        [0..8, 0..16, 0..4],
+        [9..17, 0..16, 0..4],
+        [0..17, 16..20, 0..4],
+    ]);
+    let mut mesh = Mesh::default();
+    cells_mesh(&cells, CELL, Vec3::ZERO, &mut mesh);
+    let z = 0.1;
+    let skel = Skeleton {
+        bones: vec![
+            Bone::new(
+                "hips",
+                None,
+                Vec3::new(0.2, 0.9, z),
+                Vec3::new(0.65, 0.9, z),
+            ),
+            Bone::new(
+                "leg.L",
+                Some(0),
+                Vec3::new(0.2, 0.85, z),
+                Vec3::new(0.2, 0.02, z),
+            ),
+            Bone::new(
+                "leg.R",
+                Some(0),
+                Vec3::new(0.65, 0.85, z),
+                Vec3::new(0.65, 0.02, z),
+            ),
+        ],
+        ..Skeleton::default()
+    };
+    (mesh, skel)
+}
+
+/// A column body with a head, and a hat floating above the head (its own closed part).
+fn body_with_floating_hat() -> (Mesh, Skeleton) {
+    let mut mesh = Mesh::default();
+    cells_mesh(
+        &boxes(&[[0..4, 0..12, 0..4], [1..3, 12..16, 1..3]]),
+        CELL,
+        Vec3::ZERO,
+        &mut mesh,
+    );
+    let body_vertices = mesh.positions.len();
+    cells_mesh(
+        &boxes(&[[0..4, 0..1, 0..4]]),
+        CELL,
+        Vec3::new(0.0, 0.85, 0.0),
+        &mut mesh,
+    );
+    assert!(mesh.positions.len() > body_vertices);
+    let c = Vec3::new(0.1, 0.0, 0.1);
+    let skel = Skeleton {
+        bones: vec![
+            Bone::new("spine", None, c + Vec3::Y * 0.05, c + Vec3::Y * 0.5),
+            Bone::new("neck", Some(0), c + Vec3::Y * 0.5, c + Vec3::Y * 0.62),
+            Bone::new("head", Some(1), c + Vec3::Y * 0.62, c + Vec3::Y * 0.78),
+        ],
+        ..Skeleton::default()
+    };
+    (mesh, skel)
+}
+
+fn assert_well_formed(w: &SkinWeights, vertices: usize, bones: usize) {
+    assert_eq!(w.per_vertex.len(), vertices);
+    for (v, list) in w.per_vertex.iter().enumerate() {
+        assert!(!list.is_empty(), "vertex {v} is unweighted");
+        assert!(list.len() <= 4, "vertex {v} has {} influences", list.len());
+        let sum: f32 = list.iter().map(|x| x.1).sum();
+        assert!((sum - 1.0).abs() < 1e-5, "vertex {v} sums to {sum}");
+        assert!(list.iter().all(|&(b, x)| x > 0.0 && (b as usize) < bones));
+    }
+}
+
+fn weight_of(list: &[(u32, f32)], bone: u32) -> f32 {
+    list.iter().filter(|x| x.0 == bone).map(|x| x.1).sum()
+}
+
+fn segment_distance(p: Vec3, a: Vec3, b: Vec3) -> f32 {
+    let ab = b - a;
+    let t = ((p - a).dot(ab) / ab.length_squared()).clamp(0.0, 1.0);
+    p.distance(a + ab * t)
+}
+
+#[test]
+fn the_left_leg_takes_nothing_from_the_right_leg_bone() {
+    let (mesh, skel) = two_legs();
+    let w = skin(&mesh, &skel, &SkinConfig::default()).unwrap();
+    assert_well_formed(&w, mesh.positions.len(), skel.len());
+    let (l, r) = (&skel.bones[1], &skel.bones[2]);
+    let mut inner_checked = 0;
+    for (v, &p) in mesh.positions.iter().enumerate() {
+        if p.y > 0.5 {
+            continue;
+        }
+        let (own, other) = if p.x < 0.42 { (1, 2) } else { (2, 1) };
+        assert_eq!(
+            weight_of(&w.per_vertex[v], other),
+            0.0,
+            "vertex {v} at {p} takes weight from the other leg: {:?}",
+            w.per_vertex[v]
+        );
+        assert!(
+            weight_of(&w.per_vertex[v], own) > 0.75,
+            "{:?}",
+            w.per_vertex[v]
+        );
+        // On the inner faces the other leg's bone is nearly as near in a straight line,
+        // so straight-line weights would give it a share: only the geodesic keeps it out.
+        let (dl, dr) = (
+            segment_distance(p, l.head, l.tail),
+            segment_distance(p, r.head, r.tail),
+        );
+        if (p.x - 0.4).abs() < 1e-4 || (p.x - 0.45).abs() < 1e-4 {
+            assert!(dl.max(dr) < 1.3 * dl.min(dr), "{dl} {dr}");
+            inner_checked += 1;
+        }
+    }
+    assert!(inner_checked > 10);
+}
+
+#[test]
+fn a_floating_hat_takes_only_the_head_bone() {
+    let (mesh, skel) = body_with_floating_hat();
+    let w = skin(&mesh, &skel, &SkinConfig::default()).unwrap();
+    assert_well_formed(&w, mesh.positions.len(), skel.len());
+    let hat: Vec<usize> = (0..mesh.positions.len())
+        .filter(|&v| mesh.positions[v].y >= 0.85 - 1e-4)
+        .collect();
+    assert!(!hat.is_empty());
+    for v in hat {
+        assert_eq!(w.per_vertex[v], vec![(2, 1.0)], "hat vertex {v}");
+    }
+    // The body still blends between its bones.
+    assert!(w.per_vertex.iter().any(|l| l.len() > 1));
+}
+
+#[test]
+fn bad_skeletons_are_refused_with_codes() {
+    let (mesh, skel) = two_legs();
+    let cfg = SkinConfig::default();
+    let code = |s: &Skeleton, cfg: &SkinConfig| skin(&mesh, s, cfg).unwrap_err().code();
+    assert_eq!(code(&Skeleton::default(), &cfg), "skeleton_empty");
+    let mut s = skel.clone();
+    s.bones[0].parent = Some(2);
+    assert_eq!(code(&s, &cfg), "skeleton_not_a_tree");
+    let mut s = skel.clone();
+    s.bones[1].tail.y = f32::NAN;
+    assert_eq!(code(&s, &cfg), "skeleton_non_finite");
+    let small = SkinConfig {
+        max_bones: 2,
+        ..SkinConfig::default()
+    };
+    assert_eq!(code(&skel, &small), "skeleton_too_many_bones");
+    let mut s = skel.clone();
+    s.map_points(|p| p * 100.0 + Vec3::splat(50.0));
+    assert_eq!(code(&s, &cfg), "skeleton_outside_mesh");
+    // One joint astray among several is tolerated.
+    let mut s = skel.clone();
+    s.bones[2].head = Vec3::splat(30.0);
+    assert!(skin(&mesh, &s, &cfg).is_ok());
+}
+
+fn rigserve(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_rigserve"))
+        .current_dir(env!("CARGO_MANIFEST_DIR"))
+        .args(args)
+        .output()
+        .expect("run rigserve")
+}
+
+fn write_obj(mesh: &Mesh, path: &Path) {
+    let mut s = String::new();
+    for p in &mesh.positions {
+        s += &format!("v {} {} {}\n", p.x, p.y, p.z);
+    }
+    for t in &mesh.triangles {
+        s += &format!("f {} {} {}\n", t[0] + 1, t[1] + 1, t[2] + 1);
+    }
+    std::fs::write(path, s).unwrap();
+}
+
+#[test]
+fn cli_refuses_bad_skeleton_json_with_codes() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (mesh, skel) = two_legs();
+    let obj = tmp.path().join("legs.obj");
+    write_obj(&mesh, &obj);
+    let good = bone_tree(&skel);
+    let mut cases: Vec<(&str, Value)> = Vec::new();
+    let mut v = good.clone();
+    v["bones"] = json!([]);
+    cases.push(("skeleton_empty", v));
+    let mut v = good.clone();
+    v["bones"][0]["parent"] = json!(1);
+    v["bones"][0]["parent_name"] = json!("leg.L");
+    v["bones"][1]["parent"] = json!(0);
+    cases.push(("skeleton_not_a_tree", v));
+    let mut v = good.clone();
+    v["bones"][1]["head"] = json!([1e300, 0.0, 0.0]);
+    cases.push(("skeleton_non_finite", v));
+    let mut v = good.clone();
+    let one = v["bones"][0].clone();
+    v["bones"] = Value::Array(
+        (0..5000)
+            .map(|i| {
+                let mut b = one.clone();
+                b["name"] = json!(format!("b{i}"));
+                b
+            })
+            .collect(),
+    );
+    cases.push(("skeleton_too_many_bones", v));
+    let mut v = good.clone();
+    for b in v["bones"].as_array_mut().unwrap() {
+        b["head"] = json!([40.0, 40.0, 40.0]);
+        b["tail"] = json!([41.0, 40.0, 40.0]);
+    }
+    cases.push(("skeleton_outside_mesh", v));
+    for (code, tree) in cases {
+        let path = tmp.path().join(format!("{code}.json"));
+        std::fs::write(&path, serde_json::to_vec(&tree).unwrap()).unwrap();
+        let out_glb = tmp.path().join(format!("{code}.glb"));
+        let out = rigserve(&[
+            "rig",
+            obj.to_str().unwrap(),
+            "-o",
+            out_glb.to_str().unwrap(),
+            "--skeleton",
+            path.to_str().unwrap(),
+        ]);
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert!(!out.status.success(), "{code}: accepted");
+        assert!(stderr.contains(&format!("[{code}]")), "{code}: {stderr}");
+        assert!(!out_glb.exists());
+    }
+}
+
+/// Rigs with `rigserve rig` and checks the GLB: rigserve reads back the skeleton and
+/// weights it wrote, and the Khronos validator finds no error.
+fn rig_and_check(input: &Path, skeleton_args: &[&str], out: &Path) -> Skeleton {
+    let mut args = vec!["rig", input.to_str().unwrap(), "-o", out.to_str().unwrap()];
+    args.extend_from_slice(skeleton_args);
+    let res = rigserve(&args);
+    assert!(
+        res.status.success(),
+        "{}",
+        String::from_utf8_lossy(&res.stderr)
+    );
+    let asset = load(&std::fs::read(out).unwrap(), &Limits::default()).unwrap();
+    let gt = extract(&asset).unwrap().expect("a skinned GLB");
+    assert_eq!(gt.unweighted, 0);
+    assert_well_formed(&gt.weights, asset.mesh.positions.len(), gt.skeleton.len());
+    gt.skeleton
+}
+
+#[test]
+fn cli_writes_valid_rigged_glbs() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (mesh, skel) = two_legs();
+    let obj = tmp.path().join("legs.obj");
+    write_obj(&mesh, &obj);
+    let bones = tmp.path().join("bones.json");
+    std::fs::write(&bones, serde_json::to_vec(&bone_tree(&skel)).unwrap()).unwrap();
+    let mut outputs = vec![tmp.path().join("legs.glb")];
+    let got = rig_and_check(&obj, &["--skeleton", bones.to_str().unwrap()], &outputs[0]);
+    assert_eq!(got.len(), 3);
+    if let Some(dir) = common::shared_rigs() {
+        let input = dir.join("modular_men__King.glb");
+        let out = tmp.path().join("king.glb");
+        let bones_out = tmp.path().join("king.json");
+        let got = rig_and_check(
+            &input,
+            &[
+                "--skeleton-from-input",
+                "--bones",
+                bones_out.to_str().unwrap(),
+            ],
+            &out,
+        );
+        let asset = load(&std::fs::read(&input).unwrap(), &Limits::default()).unwrap();
+        let own = extract(&asset).unwrap().unwrap().skeleton;
+        assert_eq!(got.len(), own.len());
+        assert!(bones_out.is_file());
+        outputs.push(out);
+    }
+    if let Some(reports) = common::validate(&outputs) {
+        assert!(common::errors_of(&reports).is_empty(), "{reports:#?}");
+    }
+}
+
+#[test]
+fn skin_on_gt_eval_scores_every_dev_rig() {
+    let Some(dir) = common::shared_rigs() else {
+        return;
+    };
+    let tmp = tempfile::tempdir().unwrap();
+    let report = tmp.path().join("r.json");
+    let out = rigserve(&[
+        "eval",
+        "--dataset",
+        dir.to_str().unwrap(),
+        "--split",
+        "dev",
+        "--skin-on-gt",
+        "--out",
+        report.to_str().unwrap(),
+    ]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let r: Value = serde_json::from_slice(&std::fs::read(&report).unwrap()).unwrap();
+    assert_eq!(r["mode"], "skin_on_gt");
+    assert_eq!(r["overall"]["count"], 23);
+    assert_eq!(r["overall"]["valid_fraction"], 1.0);
+    let skin = &r["overall"]["skin"];
+    // Far from perfect (0) and far from chance: nearest-bone-only weights score about 1.
+    let l1 = skin["l1"].as_f64().unwrap();
+    assert!(l1 > 0.05 && l1 < 0.9, "L1 {l1}");
+    assert!(skin["recall"].as_f64().unwrap() > 0.6);
+    assert!(r["per_category"].as_object().unwrap().len() >= 5);
+}
