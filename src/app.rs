@@ -219,7 +219,7 @@ impl Application {
             ctx.clone(),
             engine.clone(),
             WorkerConfig {
-                workers: cfg.workers.max(1),
+                workers: cfg.workers,
                 lease: cfg.lease,
                 poll: cfg.poll,
                 result_ttl: cfg.result_ttl,

@@ -45,7 +45,8 @@ pub struct ServeArgs {
     /// Seconds allowed for an upload to `POST /v1/jobs`.
     #[arg(long, env = "RIGSERVE_UPLOAD_TIMEOUT", default_value = "300", value_parser = secs)]
     pub upload_timeout: Duration,
-    /// Jobs run at once (their skeleton candidates share decode batches).
+    /// Jobs run at once (their skeleton candidates share decode batches); 0 runs no
+    /// worker in this process (API only).
     #[arg(long, env = "RIGSERVE_WORKERS", default_value_t = 4)]
     pub workers: usize,
     /// Queued jobs at most; more get 429.
