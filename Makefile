@@ -1,11 +1,18 @@
 # The two entry points of the README: `make run` and `make test`.
-.PHONY: run test setup
+.PHONY: run test setup runtime
 
+# What running needs: ONNX Runtime (from the PyPI wheel).
+runtime:
+	./scripts/setup.sh ort
+
+# What testing needs besides: gltf-validator (npm) and headless Blender (PyPI bpy).
 setup:
 	./scripts/setup.sh
 
-run:
-	cargo run --release -- $(ARGS)
+# The HTTP service on the embedded default (SQLite + files under ./data).
+# Extra flags: make run ARGS="--bind 0.0.0.0:8080 --workers 8"
+run: runtime
+	cargo run --release -- serve $(ARGS)
 
 test: setup
 	cargo test --release --no-fail-fast
