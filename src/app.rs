@@ -9,7 +9,7 @@ use crate::infer::{
     Backend, BackendConfig, InferError, ModelFiles, Runtime, SessionConfig, SkeletonModel, Variant,
 };
 use crate::jobs::pipeline::Engine;
-use crate::jobs::sqlite::SqliteStore;
+use crate::jobs::sql::SqlStore;
 use crate::jobs::sweeper::{self, SweeperConfig};
 use crate::jobs::webhook::WebhookError;
 use crate::jobs::worker::{self, WorkerConfig};
@@ -37,9 +37,24 @@ pub struct ModelSetup {
     pub max_batch: usize,
 }
 
+/// What this process does: everything, only the HTTP API, or only the workers (with a
+/// health/metrics listener), so API and worker replicas scale separately.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum Role {
+    All,
+    Api,
+    Worker,
+}
+
 #[derive(Clone, Debug)]
 pub struct Config {
     pub bind: SocketAddr,
+    pub role: Role,
+    /// `postgres://…` for the shared job store; `None`: SQLite in `data_dir`.
+    pub database_url: Option<String>,
+    pub db_max_connections: u32,
+    /// `s3://bucket/prefix` or `file:///dir`; `None`: files under `data_dir/blobs`.
+    pub blob_url: Option<String>,
     /// Holds `rigserve.db`, `blobs/` and `tmp/`.
     pub data_dir: PathBuf,
     /// `None`: no skeleton model; only `skin_only` jobs are accepted.
@@ -70,6 +85,10 @@ impl Config {
     pub fn new(bind: SocketAddr, data_dir: PathBuf) -> Config {
         Config {
             bind,
+            role: Role::All,
+            database_url: None,
+            db_max_connections: 10,
+            blob_url: None,
             data_dir,
             model: None,
             limits: Limits::default(),
@@ -163,7 +182,7 @@ impl Application {
         let tmp_dir = cfg.data_dir.join("tmp");
         std::fs::create_dir_all(&tmp_dir).map_err(dir_err)?;
 
-        let store = SqliteStore::open(&cfg.data_dir.join("rigserve.db")).await?;
+        let store = SqlStore::open_sqlite(&cfg.data_dir.join("rigserve.db")).await?;
         // One process owns the embedded store: whatever was running when it stopped
         // (crash, kill -9) has no worker any more.
         let recovered = store.recover(true, cfg.max_attempts).await?;
@@ -178,7 +197,11 @@ impl Application {
         let registry = prometheus::Registry::new();
         let job_metrics = JobMetrics::new(&registry)?;
         let http_metrics = HttpMetrics::new(&registry)?;
-        let backend = cfg.model.as_ref().map(load_backend).transpose()?;
+        let runs_jobs = cfg.role != Role::Api;
+        let backend = match (&cfg.model, runs_jobs) {
+            (Some(m), true) => Some(load_backend(m)?),
+            _ => None,
+        };
         let keys = match &cfg.api_keys_file {
             Some(p) => ApiKeys::from_file(p)?,
             None => ApiKeys::disabled(),
@@ -196,6 +219,9 @@ impl Application {
             metrics: job_metrics,
             webhooks: Some(webhooks),
         };
+        // An API replica accepts predictions when the cluster has a model (its workers
+        // load it); a process that runs jobs accepts them when it loaded one.
+        let accepts_predictions = cfg.model.is_some();
         let skeleton_model = backend.is_some();
         let engine = Arc::new(Engine {
             skeleton: backend,
@@ -219,7 +245,7 @@ impl Application {
             ctx.clone(),
             engine.clone(),
             WorkerConfig {
-                workers: cfg.workers,
+                workers: if runs_jobs { cfg.workers } else { 0 },
                 lease: cfg.lease,
                 poll: cfg.poll,
                 result_ttl: cfg.result_ttl,
@@ -250,7 +276,7 @@ impl Application {
                 poll: cfg.poll,
                 max_samples: cfg.max_samples,
                 max_bones: cfg.max_bones,
-                skeleton_model,
+                skeleton_model: accepts_predictions,
                 tmp_dir,
                 request_timeout: cfg.request_timeout,
                 upload_timeout: cfg.upload_timeout,
@@ -260,7 +286,10 @@ impl Application {
             engine_metrics,
             shutdown: shutdown.clone(),
         };
-        let router = router(state, http_metrics);
+        let router = match cfg.role {
+            Role::Worker => crate::api::health_router(state, http_metrics),
+            Role::All | Role::Api => router(state, http_metrics),
+        };
         let listener = TcpListener::bind(cfg.bind)
             .await
             .map_err(|e| AppError::Bind(cfg.bind, e))?;

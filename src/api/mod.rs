@@ -97,6 +97,17 @@ fn panic_response(_: Box<dyn std::any::Any + Send + 'static>) -> axum::response:
     .into_response()
 }
 
+/// A worker replica's listener: probes and metrics only.
+pub fn health_router(state: AppState, http: HttpMetrics) -> Router {
+    Router::new()
+        .route("/healthz", get(health::healthz))
+        .route("/readyz", get(health::readyz))
+        .route("/metrics", get(health::metrics))
+        .fallback(no_route)
+        .layer(axum::middleware::from_fn_with_state(http, metrics::track))
+        .with_state(state)
+}
+
 pub fn router(state: AppState, http: HttpMetrics) -> Router {
     let cfg = state.cfg.clone();
     // Multipart reads go through axum's own limit; raw bodies are counted while spooling.

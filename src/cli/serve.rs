@@ -2,7 +2,7 @@
 
 use super::rig::ModelArgs;
 use super::LimitArgs;
-use rigserve::app::{Application, Config, ModelSetup};
+use rigserve::app::{Application, Config, ModelSetup, Role};
 use std::net::SocketAddr;
 use std::path::PathBuf;
 use std::time::Duration;
@@ -20,6 +20,20 @@ pub struct ServeArgs {
     /// Address to listen on.
     #[arg(long, env = "RIGSERVE_BIND", default_value = "127.0.0.1:8080")]
     pub bind: SocketAddr,
+    /// all: API and workers; api: the HTTP API only; worker: workers, with /healthz,
+    /// /readyz and /metrics on --bind.
+    #[arg(long, env = "RIGSERVE_ROLE", value_enum, default_value = "all")]
+    pub role: Role,
+    /// PostgreSQL for jobs (`postgres://user:pass@host/db`); default: SQLite in --data-dir.
+    #[arg(long, env = "RIGSERVE_DATABASE_URL", hide_env_values = true)]
+    pub database_url: Option<String>,
+    /// Connections per process to --database-url.
+    #[arg(long, env = "RIGSERVE_DB_MAX_CONNECTIONS", default_value_t = 10)]
+    pub db_max_connections: u32,
+    /// Blobs in S3 (`s3://bucket/prefix`; AWS_ENDPOINT_URL, AWS_REGION, AWS_ACCESS_KEY_ID,
+    /// AWS_SECRET_ACCESS_KEY from the environment) or `file:///dir`; default: --data-dir.
+    #[arg(long, env = "RIGSERVE_BLOB_URL")]
+    pub blob_url: Option<String>,
     /// Jobs database, blobs and spooled uploads live here.
     #[arg(long, env = "RIGSERVE_DATA_DIR", default_value = "data")]
     pub data_dir: PathBuf,
@@ -106,6 +120,10 @@ fn init_logs(json: bool) {
 pub fn run(a: ServeArgs) -> anyhow::Result<()> {
     init_logs(a.log_json);
     let mut cfg = Config::new(a.bind, a.data_dir.clone());
+    cfg.role = a.role;
+    cfg.database_url = a.database_url.clone();
+    cfg.db_max_connections = a.db_max_connections;
+    cfg.blob_url = a.blob_url.clone();
     cfg.model = (!a.no_skeleton_model).then(|| ModelSetup {
         dir: a.model.models.clone(),
         variant: a.model.variant,

@@ -67,6 +67,38 @@ impl Blobs {
         Ok(Blobs::new(Arc::new(fs), ""))
     }
 
+    /// Blobs at a URL: `s3://bucket/prefix` (endpoint, region and credentials from the
+    /// usual AWS environment: `AWS_ENDPOINT_URL`, `AWS_REGION`, `AWS_ACCESS_KEY_ID`,
+    /// `AWS_SECRET_ACCESS_KEY`; a plain `http://` endpoint is allowed) or `file:///dir`.
+    pub fn from_url(url: &str) -> Result<Blobs, BlobError> {
+        let u = url::Url::parse(url).map_err(|e| BlobError::Config(format!("{url}: {e}")))?;
+        match u.scheme() {
+            "s3" => {
+                let bucket = u
+                    .host_str()
+                    .filter(|b| !b.is_empty())
+                    .ok_or_else(|| BlobError::Config(format!("{url}: no bucket")))?;
+                let mut b = object_store::aws::AmazonS3Builder::from_env().with_bucket_name(bucket);
+                let endpoint = std::env::var("AWS_ENDPOINT_URL")
+                    .or_else(|_| std::env::var("AWS_ENDPOINT"))
+                    .ok();
+                if let Some(ep) = endpoint {
+                    b = b
+                        .with_allow_http(ep.starts_with("http://"))
+                        .with_endpoint(ep);
+                }
+                let store = b
+                    .build()
+                    .map_err(|e| BlobError::Config(format!("{url}: {e}")))?;
+                Ok(Blobs::new(Arc::new(store), u.path()))
+            }
+            "file" => Blobs::local(Path::new(u.path())),
+            other => Err(BlobError::Config(format!(
+                "{url}: unsupported scheme {other}: (use s3:// or file://)"
+            ))),
+        }
+    }
+
     /// Blobs in any store, under `prefix` (no leading or trailing `/` needed).
     pub fn new(store: Arc<dyn ObjectStore>, prefix: &str) -> Blobs {
         Blobs {
@@ -123,7 +155,11 @@ impl Blobs {
 
     /// A cheap round trip (readiness): listing a prefix that is normally empty.
     pub async fn ping(&self) -> Result<(), BlobError> {
-        let probe = ObjectPath::from(format!("{}/readyz", self.prefix.trim_matches('/')));
+        let probe = if self.prefix.is_empty() {
+            ObjectPath::from("readyz")
+        } else {
+            ObjectPath::from(format!("{}/readyz", self.prefix))
+        };
         let _: Vec<_> = self.store.list(Some(&probe)).try_collect().await?;
         Ok(())
     }

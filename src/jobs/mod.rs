@@ -10,7 +10,7 @@ pub mod events;
 pub mod metrics;
 pub mod model;
 pub mod pipeline;
-pub mod sqlite;
+pub mod sql;
 pub mod store;
 pub mod sweeper;
 pub mod view;
