@@ -28,10 +28,11 @@ RUN apt-get update \
  && rm -rf /var/lib/apt/lists/* \
  && useradd --system --uid 10001 --user-group --home-dir /app --shell /usr/sbin/nologin rigserve \
  && install -d -o 10001 -g 10001 /data
-COPY --from=build /out/rigserve /app/rigserve
+# Least often changed first, so a code change rebuilds only the last layer.
 COPY --from=ort /out/libonnxruntime.so.1.31.1 /app/lib/libonnxruntime.so.1.31.1
 COPY models /app/models
 COPY deploy/healthcheck.sh /app/healthcheck.sh
+COPY --from=build /out/rigserve /app/rigserve
 # Every flag has an environment variable; these are the ones the layout fixes.
 # Cluster settings (RIGSERVE_ROLE, RIGSERVE_DATABASE_URL, RIGSERVE_BLOB_URL, AWS_*)
 # come from the orchestrator (deploy/k8s, deploy/compose.yaml).
