@@ -23,6 +23,7 @@ fn docs(rel: &str) -> Vec<Value> {
         .filter(|v| !v.is_null())
         .collect()
 }
+
 fn s<'a>(v: &'a Value, path: &[&str]) -> &'a Value {
     path.iter().fold(v, |v, k| &v[*k])
 }
