@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
-# Installs what the tests use beyond cargo: the Khronos glTF validator (npm) and
-# headless Blender (PyPI bpy). Idempotent: a second run only checks.
+# Installs what the tests use beyond cargo: the Khronos glTF validator (npm),
+# headless Blender (PyPI bpy) and kubernetes-validate (PyPI). Idempotent: a second
+# run only checks.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
@@ -17,20 +18,13 @@ if [ "$only_ort" != "ort" ] && ! python3 -c "import bpy" >/dev/null 2>&1; then
   python3 -m pip install --quiet --disable-pip-version-check bpy==5.0.1
 fi
 
+# Offline schema check of deploy/k8s (tests/deploy.rs): `kubectl apply --dry-run=client`
+# needs a reachable API server, which CI has not.
+if [ "$only_ort" != "ort" ] && ! command -v kubernetes-validate >/dev/null 2>&1; then
+  echo "setup: installing kubernetes-validate==1.37.0 (PyPI)"
+  python3 -m pip install --quiet --disable-pip-version-check kubernetes-validate==1.37.0
+fi
+
 # ONNX Runtime for the `ort` crate (load-dynamic): the shared library from the PyPI
 # wheel, unpacked into .onnxruntime/ (git-ignored). RIGSERVE_ORT_LIB points at it.
-ORT_LIB=.onnxruntime/libonnxruntime.so.1.31.1
-if [ ! -f "$ORT_LIB" ]; then
-  echo "setup: fetching onnxruntime==1.31.1 (PyPI wheel) for libonnxruntime.so"
-  tmp=$(mktemp -d)
-  python3 -m pip download --quiet --disable-pip-version-check --no-deps --only-binary=:all: -d "$tmp" onnxruntime==1.31.1
-  mkdir -p .onnxruntime
-  python3 - "$tmp" <<'PY'
-import glob, sys, zipfile
-wheel = glob.glob(sys.argv[1] + "/onnxruntime-1.31.1-*.whl")[0]
-with zipfile.ZipFile(wheel) as z:
-    name = "onnxruntime/capi/libonnxruntime.so.1.31.1"
-    open(".onnxruntime/libonnxruntime.so.1.31.1", "wb").write(z.read(name))
-PY
-  rm -rf "$tmp"
-fi
+./scripts/fetch_ort.sh .onnxruntime
