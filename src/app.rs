@@ -182,17 +182,32 @@ impl Application {
         let tmp_dir = cfg.data_dir.join("tmp");
         std::fs::create_dir_all(&tmp_dir).map_err(dir_err)?;
 
-        let store = SqlStore::open_sqlite(&cfg.data_dir.join("rigserve.db")).await?;
-        // One process owns the embedded store: whatever was running when it stopped
-        // (crash, kill -9) has no worker any more.
-        let recovered = store.recover(true, cfg.max_attempts).await?;
-        if recovered > 0 {
-            info!(
-                jobs = recovered,
-                "re-queued jobs left running by the previous process"
-            );
+        let (store, embedded) = match &cfg.database_url {
+            Some(url) => (
+                SqlStore::open_postgres(url, cfg.db_max_connections).await?,
+                false,
+            ),
+            None => (
+                SqlStore::open_sqlite(&cfg.data_dir.join("rigserve.db")).await?,
+                true,
+            ),
+        };
+        if embedded {
+            // One process owns the embedded store: whatever was running when it stopped
+            // (crash, kill -9) has no worker any more. A shared store waits for leases to
+            // run out instead (the sweeper), since other replicas may be running them.
+            let recovered = store.recover(true, cfg.max_attempts).await?;
+            if recovered > 0 {
+                info!(
+                    jobs = recovered,
+                    "re-queued jobs left running by the previous process"
+                );
+            }
         }
-        let blobs = Blobs::local(&cfg.data_dir.join("blobs"))?;
+        let blobs = match &cfg.blob_url {
+            Some(url) => Blobs::from_url(url)?,
+            None => Blobs::local(&cfg.data_dir.join("blobs"))?,
+        };
 
         let registry = prometheus::Registry::new();
         let job_metrics = JobMetrics::new(&registry)?;

