@@ -156,7 +156,68 @@ pub fn skin_timed(
     skeleton: &Skeleton,
     cfg: &SkinConfig,
 ) -> Result<(SkinWeights, SkinTimings), SkinError> {
+    // Two spare candidates beyond the kept influences: enough for the inverse-distance
+    // blend, whose weights depend only on the nearest `max_influences`.
+    let (cands, mut times) = candidates_timed(mesh, skeleton, cfg, cfg.max_influences + 2)?;
+    let t2 = Instant::now();
+    let out = cands.geometric(cfg);
+    times.weights_ms = ms(t2);
+    Ok((out, times))
+}
+
+/// The bones a vertex may take, decided by the per-part rules of the module docs.
+#[derive(Clone, Debug, PartialEq)]
+pub enum VertexBones {
+    /// The part floats free: this bone alone, weight 1.
+    Rigid(u32),
+    /// The nearest allowed bones `(bone, distance in mesh units)`, nearest first;
+    /// geodesic through the volume, or straight-line when the volume does not reach
+    /// the vertex (`geodesic` false). Empty only for a vertex no triangle uses.
+    Near {
+        bones: Vec<(u32, f32)>,
+        geodesic: bool,
+    },
+}
+
+/// Each vertex's candidate bones: what geometric weights blend and what the learned
+/// model rescores.
+#[derive(Clone, Debug)]
+pub struct Candidates {
+    pub per_vertex: Vec<VertexBones>,
+    /// Voxel size, in mesh units.
+    pub cell: f32,
+}
+
+impl Candidates {
+    /// Inverse-distance weights ([`weights::from_distances`]) over the candidates.
+    pub fn geometric(&self, cfg: &SkinConfig) -> SkinWeights {
+        let mut out = SkinWeights {
+            per_vertex: self
+                .per_vertex
+                .iter()
+                .map(|v| match v {
+                    VertexBones::Rigid(b) => vec![(*b, 1.0)],
+                    VertexBones::Near { bones, .. } => {
+                        weights::from_distances(bones, cfg, self.cell)
+                    }
+                })
+                .collect(),
+        };
+        out.normalize();
+        out
+    }
+}
+
+/// The `k` nearest allowed bones of every vertex (see [`Candidates`]), checked and
+/// timed like [`skin_timed`] (`weights_ms` is left at zero).
+pub fn candidates_timed(
+    mesh: &Mesh,
+    skeleton: &Skeleton,
+    cfg: &SkinConfig,
+    k: usize,
+) -> Result<(Candidates, SkinTimings), SkinError> {
     validate::check(mesh, skeleton, cfg)?;
+    let k = k.max(cfg.max_influences).max(1);
     let mut times = SkinTimings::default();
     let t0 = Instant::now();
     let pos = &mesh.positions;
@@ -249,7 +310,6 @@ pub fn skin_timed(
         .collect();
 
     let stencils = Stencils::new(&volume, pos);
-    let k = cfg.max_influences + 2;
     let mut nearest: Vec<Vec<(u32, f32)>> = vec![Vec::new(); pos.len()];
     let (mut dist, mut ring) = (Vec::new(), Ring::default());
     for (b, bone_seeds) in seeds.iter().enumerate() {
@@ -267,33 +327,39 @@ pub fn skin_timed(
             }
         }
     }
-    times.geodesic_ms = ms(t1);
 
-    let t2 = Instant::now();
-    let mut out = SkinWeights {
-        per_vertex: Vec::with_capacity(pos.len()),
-    };
-    for (v, cands) in nearest.iter_mut().enumerate() {
-        let binding = parts.of_vertex[v].map(|p| &bindings[p as usize]);
-        if let Some(Binding::Rigid(b)) = binding {
-            out.per_vertex.push(vec![(*b, 1.0)]);
-            continue;
-        }
-        if cands.is_empty() {
-            // Not reached through the volume: straight-line distance to the bones the
-            // part may use.
-            for (b, s) in segs.iter().enumerate() {
-                if !matches!(binding, Some(Binding::Bones(ok)) if !ok[b]) {
-                    insert_nearest(cands, (b as u32, s.distance(pos[v])), k);
+    let per_vertex = nearest
+        .into_iter()
+        .enumerate()
+        .map(|(v, mut cands)| {
+            let binding = parts.of_vertex[v].map(|p| &bindings[p as usize]);
+            if let Some(Binding::Rigid(b)) = binding {
+                return VertexBones::Rigid(*b);
+            }
+            let geodesic = !cands.is_empty();
+            if !geodesic {
+                // Not reached through the volume: straight-line distance to the bones the
+                // part may use.
+                for (b, s) in segs.iter().enumerate() {
+                    if !matches!(binding, Some(Binding::Bones(ok)) if !ok[b]) {
+                        insert_nearest(&mut cands, (b as u32, s.distance(pos[v])), k);
+                    }
                 }
             }
-        }
-        out.per_vertex
-            .push(weights::from_distances(cands, cfg, volume.grid.cell));
-    }
-    out.normalize();
-    times.weights_ms = ms(t2);
-    Ok((out, times))
+            VertexBones::Near {
+                bones: cands,
+                geodesic,
+            }
+        })
+        .collect();
+    times.geodesic_ms = ms(t1);
+    Ok((
+        Candidates {
+            per_vertex,
+            cell: volume.grid.cell,
+        },
+        times,
+    ))
 }
 
 fn ms(t: Instant) -> f64 {
