@@ -16,20 +16,28 @@
 //! This is also the distance feature and the fallback of the learned skin model.
 
 mod components;
+pub mod features;
 mod geodesic;
+mod learned;
 mod validate;
 mod voxel;
 mod weights;
 
+use crate::infer::SkinModel;
 use crate::mesh::Mesh;
 use crate::rig::metrics::Segment;
 use crate::rig::skeleton::SkeletonError;
 use crate::rig::{Skeleton, SkinWeights};
 use geodesic::{Ring, Stamp, Stencils, Volume};
 use glam::Vec3;
+pub use learned::from_scores;
 use serde::Serialize;
 use std::time::Instant;
 use voxel::{Grid, Region};
+
+/// Candidate bones per vertex the learned model chooses among: more than the four kept
+/// influences, so it can pass over bones artists leave unweighted.
+pub const LEARNED_CANDIDATES: usize = 8;
 
 /// The most cells along the longest side, so memory stays bounded (~7 MB of flags).
 pub const MAX_RESOLUTION: usize = 192;
@@ -105,6 +113,10 @@ pub enum SkinError {
     BadTriangle(usize),
     #[error("invalid skinning configuration: {0}")]
     BadConfig(String),
+    /// The learned model failed; `code` is the inference layer's
+    /// ([`crate::infer::InferError::code`]).
+    #[error("the skin model failed: {message}")]
+    Model { code: &'static str, message: String },
 }
 
 impl SkinError {
@@ -116,6 +128,7 @@ impl SkinError {
             SkinError::NonFiniteMesh => "skin_non_finite_mesh",
             SkinError::BadTriangle(_) => "skin_bad_triangle",
             SkinError::BadConfig(_) => "skin_bad_config",
+            SkinError::Model { code, .. } => code,
         }
     }
 }
@@ -126,6 +139,8 @@ pub struct SkinTimings {
     pub voxelize_ms: f64,
     pub geodesic_ms: f64,
     pub weights_ms: f64,
+    /// Features and the learned model (zero for geometric weights).
+    pub model_ms: f64,
     pub solid_cells: usize,
     pub parts: usize,
 }
@@ -138,6 +153,31 @@ pub struct SkinTimings {
 /// [`SkinError`] for what is refused. Deterministic: equal inputs give equal weights.
 pub fn skin(mesh: &Mesh, skeleton: &Skeleton, cfg: &SkinConfig) -> Result<SkinWeights, SkinError> {
     skin_timed(mesh, skeleton, cfg).map(|(w, _)| w)
+}
+
+/// [`skin`] with the learned model when one is given (see [`SkinModel`]), the geometric
+/// weights otherwise. Same guarantees as [`skin`]; the model only chooses among each
+/// vertex's nearest allowed bones, so the per-part rules still hold.
+pub fn skin_with(
+    mesh: &Mesh,
+    skeleton: &Skeleton,
+    cfg: &SkinConfig,
+    model: Option<&SkinModel>,
+) -> Result<SkinWeights, SkinError> {
+    skin_with_timed(mesh, skeleton, cfg, model).map(|(w, _)| w)
+}
+
+/// [`skin_with`], also reporting where the time went.
+pub fn skin_with_timed(
+    mesh: &Mesh,
+    skeleton: &Skeleton,
+    cfg: &SkinConfig,
+    model: Option<&SkinModel>,
+) -> Result<(SkinWeights, SkinTimings), SkinError> {
+    match model {
+        Some(m) => learned::skin_learned_timed(mesh, skeleton, cfg, m),
+        None => skin_timed(mesh, skeleton, cfg),
+    }
 }
 
 /// How a part of the mesh chooses its bones.
