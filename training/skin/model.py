@@ -127,12 +127,20 @@ class SkinModel(nn.Module):
             be = layer(be, bias)
         be = self.bone_out(be)
         r, k = cand.shape[0], cand.shape[1]
-        cb = be[idx]  # (R, K, d)
+        d = ve.shape[-1]
+        # pair_in's first layer on [vertex; bone; pair features; offset] is split by
+        # columns, so the vertex and bone parts run once per row and per bone rather than
+        # once per pair (the same function, about half the work at inference).
+        w1, b1 = self.pair_in[0].weight, self.pair_in[0].bias
         rel = vert[:, None, :3] - bone[idx][..., 0:3]
-        h = self.pair_in(torch.cat([ve[:, None, :].expand(r, k, ve.shape[-1]), cb, pair, fourier(rel, f)], dim=-1))
+        pre = (F.linear(ve, w1[:, :d], b1)[:, None, :] + F.linear(be, w1[:, d:2 * d])[idx]
+               + F.linear(torch.cat([pair, fourier(rel, f)], dim=-1), w1[:, 2 * d:]))
+        h = self.pair_in[2](self.pair_in[1](pre))
         key_bias = torch.where(valid, 0.0, NEG)[:, None, None, :]  # (R, 1 head, 1 query, K)
         ctx = self.cross(ve[:, None, :], h, key_bias)  # (R, 1, d)
-        out = self.head(torch.cat([h, ctx.expand(r, k, ctx.shape[-1])], dim=-1)).squeeze(-1)
+        w2, b2 = self.head[0].weight, self.head[0].bias
+        pre = F.linear(h, w2[:, :d]) + F.linear(ctx, w2[:, d:], b2)
+        out = self.head[2](self.head[1](pre)).squeeze(-1)
         blend = pair[..., PAIR_BLEND].clamp(min=0.0)
         out = out + self.geo_scale * torch.log(blend + 1e-4)
         return torch.where(valid, out, torch.full_like(out, NEG))
