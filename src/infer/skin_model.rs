@@ -191,3 +191,33 @@ impl SkinModel {
         Ok(out)
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn one_model_can_be_shared_by_worker_threads() {
+        fn shared<T: Send + Sync>() {}
+        shared::<SkinModel>();
+    }
+
+    #[test]
+    fn find_prefers_the_given_file_then_fp32_then_fp16_then_a_models_root() {
+        let tmp = tempfile::tempdir().unwrap();
+        let root = tmp.path();
+        assert_eq!(SkinModel::find(root), None);
+        std::fs::create_dir(root.join("skin")).unwrap();
+        std::fs::write(root.join("skin/skin.fp16.onnx"), b"x").unwrap();
+        assert_eq!(
+            SkinModel::find(root),
+            Some(root.join("skin/skin.fp16.onnx"))
+        );
+        std::fs::write(root.join("skin/skin.onnx"), b"x").unwrap();
+        assert_eq!(SkinModel::find(root), Some(root.join("skin/skin.onnx")));
+        assert_eq!(
+            SkinModel::find(&root.join("skin/skin.fp16.onnx")),
+            Some(root.join("skin/skin.fp16.onnx"))
+        );
+    }
+}
