@@ -31,6 +31,8 @@ BONE_FEATURES = 17
 PAIR_FEATURES = 11
 # Column of `pair` holding the geometric blend over the candidates (sums to 1 per row).
 PAIR_BLEND = 2
+# Columns of `bone` holding the name hints (end, control, twist).
+NAME_HINTS = slice(12, 15)
 NEG = -1e4
 
 
@@ -40,6 +42,9 @@ class SkinConfig:
     heads: int = 4
     freqs: int = 4
     bone_layers: int = 1
+    # Off: the bone name hints (columns NAME_HINTS of `bone`) are zeroed, so the model
+    # judges bones by geometry and topology alone (as for generically named skeletons).
+    name_hints: bool = True
 
     def to_dict(self):
         return asdict(self)
@@ -116,6 +121,10 @@ class SkinModel(nn.Module):
         """Masked logits (R, K). `bone_item` (B,) keeps bones of different meshes of a
         training batch from attending to each other; inference runs one mesh."""
         f = self.cfg.freqs
+        if not self.cfg.name_hints:
+            keep = torch.ones(BONE_FEATURES, dtype=bone.dtype)
+            keep[NAME_HINTS] = 0.0
+            bone = bone * keep
         valid = cand >= 0
         idx = torch.where(valid, cand, torch.zeros_like(cand))
         ve = self.vert_in(torch.cat([fourier(vert[:, :3], f), vert], dim=-1))

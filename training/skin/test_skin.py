@@ -52,6 +52,17 @@ def test_untrained_model_gives_the_geometric_blend_and_pads_get_nothing():
     assert torch.allclose(w, pair[..., 2], atol=2e-3)
 
 
+def test_without_name_hints_the_names_do_not_matter():
+    vert, bone, cand, pair = example_inputs(rows=30, bones=7, k=5)
+    renamed = bone.clone()
+    renamed[:, 12:15] = 1.0 - renamed[:, 12:15]
+    blind, seeing = _random_model(1), _random_model(1)
+    blind.cfg.name_hints = False
+    with torch.no_grad():
+        assert float((blind(vert, bone, cand, pair) - blind(vert, renamed, cand, pair)).abs().max()) == 0.0
+        assert float((seeing(vert, bone, cand, pair) - seeing(vert, renamed, cand, pair)).abs().max()) > 1e-4
+
+
 def test_sparsify_keeps_the_rust_rules():
     w = torch.tensor([[0.5, 0.3, 0.12, 0.04, 0.04], [0.9, 0.02, 0.02, 0.03, 0.03]])
     cand = torch.tensor([[0, 1, 2, 3, 4], [0, 1, 2, 3, -1]])

@@ -45,6 +45,7 @@ def parse_args(argv=None):
     ap.add_argument("--d", type=int, default=64)
     ap.add_argument("--heads", type=int, default=4)
     ap.add_argument("--bone-layers", type=int, default=1)
+    ap.add_argument("--no-name-hints", action="store_true", help="ignore the bone name hints (ablation)")
     ap.add_argument("--threads", type=int, default=1)
     ap.add_argument("--log-every", type=int, default=25)
     ap.add_argument("--ckpt-every", type=int, default=200)
@@ -95,7 +96,8 @@ def main(argv=None):
         if "dev" in os.path.basename(os.path.normpath(d)).lower():
             raise SystemExit(f"--data {d} looks like the dev split; never train on dev")
     resume = torch.load(last_path, map_location="cpu", weights_only=False) if a.resume and os.path.exists(last_path) else None
-    cfg = SkinConfig.from_dict(resume["config"]) if resume else SkinConfig(d=a.d, heads=a.heads, bone_layers=a.bone_layers)
+    cfg = (SkinConfig.from_dict(resume["config"]) if resume
+           else SkinConfig(d=a.d, heads=a.heads, bone_layers=a.bone_layers, name_hints=not a.no_name_hints))
     random.seed(a.seed)
     np.random.seed(a.seed)
     torch.manual_seed(a.seed)
