@@ -13,7 +13,10 @@
 //! of every bone's volume (a hat above the head, a sword held loose) is bound rigidly to
 //! the single bone nearest to it on average, as an artist parents a prop.
 //!
-//! This is also the distance feature and the fallback of the learned skin model.
+//! This is also the distance feature and the fallback of the learned skin model:
+//! [`candidates_timed`] gives each vertex its nearest allowed bones, [`features`] what the
+//! model reads, and [`skin_with`] lets the model choose among those bones when one is
+//! loaded ([`crate::infer::SkinModel`], `models/skin/`).
 
 mod components;
 pub mod features;
@@ -212,7 +215,8 @@ pub enum VertexBones {
     Rigid(u32),
     /// The nearest allowed bones `(bone, distance in mesh units)`, nearest first;
     /// geodesic through the volume, or straight-line when the volume does not reach
-    /// the vertex (`geodesic` false). Empty only for a vertex no triangle uses.
+    /// the vertex (`geodesic` false). Never empty: a part may always use at least one
+    /// bone, and a vertex outside every part may use them all.
     Near {
         bones: Vec<(u32, f32)>,
         geodesic: bool,
@@ -229,7 +233,7 @@ pub struct Candidates {
 }
 
 impl Candidates {
-    /// Inverse-distance weights ([`weights::from_distances`]) over the candidates.
+    /// Inverse-distance weights (`weights::from_distances`) over the candidates.
     pub fn geometric(&self, cfg: &SkinConfig) -> SkinWeights {
         let mut out = SkinWeights {
             per_vertex: self
