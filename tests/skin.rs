@@ -1,13 +1,16 @@
 //! Geometric skinning from the outside: the weights' invariants, geodesic distances that
 //! do not jump gaps, floating parts bound to one bone, refused skeletons with their
-//! codes, and `rigserve rig` writing GLBs the Khronos validator accepts.
+//! codes, and `rigserve rig` writing GLBs the Khronos validator accepts; and the learned
+//! model (`models/skin/`) keeping the same invariants, the per-part rules, its data set
+//! writer, and beating the geometric weights on the dev split.
 mod common;
 
 use glam::Vec3;
 use rigserve::export::bone_tree;
+use rigserve::infer::{Runtime, SessionConfig, SkinModel};
 use rigserve::mesh::{load, Limits, Mesh};
 use rigserve::rig::groundtruth::extract;
-use rigserve::rig::skin::{skin, SkinConfig};
+use rigserve::rig::skin::{skin, skin_with, SkinConfig};
 use rigserve::rig::{Bone, Skeleton, SkinWeights};
 use serde_json::{json, Value};
 use std::collections::{HashMap, HashSet};
@@ -398,4 +401,210 @@ fn skin_on_gt_eval_scores_every_dev_rig() {
     assert!(l1 > 0.05 && l1 < 0.9, "L1 {l1}");
     assert!(skin["recall"].as_f64().unwrap() > 0.6);
     assert!(r["per_category"].as_object().unwrap().len() >= 5);
+}
+
+/// The shipped skin model, loaded on the repository's ONNX Runtime.
+fn shipped_model() -> SkinModel {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let file = SkinModel::find(&root.join("models")).expect("models/skin holds the skin model");
+    let rt = Runtime::init(None).expect("ONNX Runtime (scripts/setup.sh)");
+    SkinModel::load(&rt, &file, &SessionConfig::default()).expect("a skin-v1 model")
+}
+
+#[test]
+fn learned_weights_are_well_formed_and_keep_the_per_part_rules() {
+    let model = shipped_model();
+    let cfg = SkinConfig::default();
+    let (mesh, skel) = body_with_floating_hat();
+    let learned = skin_with(&mesh, &skel, &cfg, Some(&model)).unwrap();
+    assert_well_formed(&learned, mesh.positions.len(), skel.len());
+    let geometric = skin(&mesh, &skel, &cfg).unwrap();
+    assert_eq!(skin_with(&mesh, &skel, &cfg, None).unwrap(), geometric);
+    // The floating hat stays bound rigidly to the head, as the geometric rules bind it.
+    let hat = mesh
+        .positions
+        .iter()
+        .enumerate()
+        .filter(|(_, p)| p.y > 0.84);
+    for (v, _) in hat {
+        assert_eq!(learned.per_vertex[v], vec![(2, 1.0)], "hat vertex {v}");
+    }
+    // Separate legs: the model only picks among each vertex's allowed bones.
+    let (mesh, skel) = two_legs();
+    let w = skin_with(&mesh, &skel, &cfg, Some(&model)).unwrap();
+    assert_well_formed(&w, mesh.positions.len(), skel.len());
+    for (v, p) in mesh.positions.iter().enumerate() {
+        if p.y < 0.4 {
+            let other = if p.x < 0.42 { 2 } else { 1 };
+            assert_eq!(weight_of(&w.per_vertex[v], other), 0.0, "vertex {v} at {p}");
+        }
+    }
+}
+
+#[test]
+fn learned_method_without_a_model_is_refused() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (mesh, skel) = two_legs();
+    let obj = tmp.path().join("legs.obj");
+    write_obj(&mesh, &obj);
+    let bones = tmp.path().join("bones.json");
+    std::fs::write(&bones, serde_json::to_vec(&bone_tree(&skel)).unwrap()).unwrap();
+    let out_glb = tmp.path().join("legs.glb");
+    let run = |method: &str| {
+        rigserve(&[
+            "rig",
+            obj.to_str().unwrap(),
+            "-o",
+            out_glb.to_str().unwrap(),
+            "--skeleton",
+            bones.to_str().unwrap(),
+            "--skin-method",
+            method,
+            "--skin-model",
+            tmp.path().join("nowhere").to_str().unwrap(),
+        ])
+    };
+    let out = run("learned");
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("[model_not_found]"));
+    assert!(!out_glb.exists());
+    // auto falls back to geometric weights.
+    let out = run("auto");
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(String::from_utf8_lossy(&out.stderr).contains("(geometric)"));
+}
+
+#[test]
+fn skin_dataset_rows_match_the_index_and_targets_are_weights() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (mesh, skel) = two_legs();
+    let obj = tmp.path().join("legs.obj");
+    write_obj(&mesh, &obj);
+    let bones = tmp.path().join("bones.json");
+    std::fs::write(&bones, serde_json::to_vec(&bone_tree(&skel)).unwrap()).unwrap();
+    let data = tmp.path().join("data");
+    std::fs::create_dir(&data).unwrap();
+    rig_and_check(
+        &obj,
+        &[
+            "--skeleton",
+            bones.to_str().unwrap(),
+            "--skin-method",
+            "geometric",
+        ],
+        &data.join("legs.glb"),
+    );
+    std::fs::write(
+        data.join("manifest.tsv"),
+        "file\tcategory\tsplit\nlegs.glb\tother_creature\ttrain\n",
+    )
+    .unwrap();
+    let out = tmp.path().join("ds");
+    let res = rigserve(&[
+        "dataset",
+        "--skin",
+        "--input",
+        data.to_str().unwrap(),
+        "--split",
+        "train",
+        "--out",
+        out.to_str().unwrap(),
+        "--points",
+        "50",
+        "--augment",
+        "2",
+        "--candidates",
+        "3",
+    ]);
+    assert!(
+        res.status.success(),
+        "{}",
+        String::from_utf8_lossy(&res.stderr)
+    );
+    let index: Vec<Value> = std::fs::read_to_string(out.join("index.jsonl"))
+        .unwrap()
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap())
+        .collect();
+    assert_eq!(index.len(), 3);
+    let rows: u64 = index.iter().map(|i| i["rows"].as_u64().unwrap()).sum();
+    let nbones: u64 = index.iter().map(|i| i["bones"].as_u64().unwrap()).sum();
+    assert_eq!(rows, 150);
+    assert_eq!(nbones, 9);
+    let floats = |name: &str| -> Vec<f32> {
+        std::fs::read(out.join(name))
+            .unwrap()
+            .chunks_exact(4)
+            .map(|c| f32::from_le_bytes(c.try_into().unwrap()))
+            .collect()
+    };
+    assert_eq!(floats("vert.f32").len() as u64, rows * 6);
+    assert_eq!(floats("pair.f32").len() as u64, rows * 3 * 11);
+    assert_eq!(floats("bone.f32").len() as u64, nbones * 17);
+    let cand: Vec<i32> = std::fs::read(out.join("cand.i32"))
+        .unwrap()
+        .chunks_exact(4)
+        .map(|c| i32::from_le_bytes(c.try_into().unwrap()))
+        .collect();
+    let target = floats("target.f32");
+    assert_eq!(cand.len() as u64, rows * 3);
+    assert!(cand.iter().all(|&c| (-1..3).contains(&c)));
+    for (r, t) in target.chunks_exact(3).enumerate() {
+        let sum: f32 = t.iter().sum();
+        assert!(
+            sum <= 1.0 + 1e-5 && t.iter().all(|&x| x >= 0.0),
+            "row {r}: {t:?}"
+        );
+        // The rig was skinned from these very candidates: all its weight is on them.
+        assert!(sum > 0.999, "row {r}: {t:?}");
+        for (j, &x) in t.iter().enumerate() {
+            assert!(x == 0.0 || cand[r * 3 + j] >= 0);
+        }
+    }
+}
+
+#[test]
+fn learned_skin_beats_geometric_on_dev() {
+    let Some(dir) = common::shared_rigs() else {
+        return;
+    };
+    let tmp = tempfile::tempdir().unwrap();
+    let score = |method: &str| -> Value {
+        let report = tmp.path().join(format!("{method}.json"));
+        let out = rigserve(&[
+            "eval",
+            "--dataset",
+            dir.to_str().unwrap(),
+            "--split",
+            "dev",
+            "--skin-on-gt",
+            "--skin-method",
+            method,
+            "--out",
+            report.to_str().unwrap(),
+        ]);
+        assert!(
+            out.status.success(),
+            "{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        let r: Value = serde_json::from_slice(&std::fs::read(&report).unwrap()).unwrap();
+        assert_eq!(r["overall"]["valid_fraction"], 1.0);
+        r["overall"]["skin"].clone()
+    };
+    let (learned, geometric) = (score("learned"), score("geometric"));
+    let f = |v: &Value, k: &str| v[k].as_f64().unwrap();
+    assert!(
+        f(&learned, "l1") < f(&geometric, "l1"),
+        "{learned} vs {geometric}"
+    );
+    assert!(
+        f(&learned, "recall") > f(&geometric, "recall"),
+        "{learned} vs {geometric}"
+    );
+    assert!(f(&learned, "deformation") < 1.1 * f(&geometric, "deformation"));
 }

@@ -8,7 +8,7 @@ use rigserve::infer::{Backend, BackendConfig, MetricsSnapshot, SamplingParams, S
 use rigserve::mesh::{self, sample::SplitMix64};
 use rigserve::predict::{mesh_samples, predict_from_samples, PredictConfig, MODEL_POINTS};
 use rigserve::rig::groundtruth::extract;
-use rigserve::rig::skin::{skin_timed, SkinTimings};
+use rigserve::rig::skin::{skin_with_timed, SkinTimings};
 use rigserve::rig::tokenizer::{BOS, CLS_NONE};
 use serde::Serialize;
 use std::path::PathBuf;
@@ -90,6 +90,9 @@ pub struct SkinArgs {
     pub json: bool,
     #[command(flatten)]
     pub skin: super::rig::SkinArgs,
+    /// The ONNX Runtime library, for the learned skin model.
+    #[arg(long, env = "RIGSERVE_ORT_LIB")]
+    pub ort_lib: Option<PathBuf>,
     #[command(flatten)]
     pub limits: LimitArgs,
 }
@@ -109,6 +112,7 @@ struct SkinReport {
     triangles: usize,
     bones: usize,
     voxels: usize,
+    method: &'static str,
     runs: Vec<SkinTimings>,
     mean: SkinTimings,
     mean_total_ms: f64,
@@ -124,9 +128,10 @@ fn skin(a: SkinArgs) -> anyhow::Result<()> {
         .ok_or_else(|| anyhow::anyhow!("{} has no skeleton [no_skin]", a.input.display()))?
         .skeleton;
     let cfg = a.skin.config();
+    let model = a.skin.load_model(a.ort_lib.as_deref())?;
     let mut runs = Vec::new();
     for r in 0..=a.repeat {
-        let (_, t) = skin_timed(&asset.mesh, &skeleton, &cfg)
+        let (_, t) = skin_with_timed(&asset.mesh, &skeleton, &cfg, model.as_ref())
             .map_err(|e| anyhow::anyhow!("{e} [{}]", e.code()))?;
         if r > 0 {
             runs.push(t);
@@ -137,6 +142,7 @@ fn skin(a: SkinArgs) -> anyhow::Result<()> {
         voxelize_ms: runs.iter().map(|t| t.voxelize_ms).sum::<f64>() / n,
         geodesic_ms: runs.iter().map(|t| t.geodesic_ms).sum::<f64>() / n,
         weights_ms: runs.iter().map(|t| t.weights_ms).sum::<f64>() / n,
+        model_ms: runs.iter().map(|t| t.model_ms).sum::<f64>() / n,
         ..runs.last().copied().unwrap_or_default()
     };
     let report = SkinReport {
@@ -145,17 +151,22 @@ fn skin(a: SkinArgs) -> anyhow::Result<()> {
         triangles: asset.mesh.triangles.len(),
         bones: skeleton.len(),
         voxels: cfg.resolution,
+        method: if model.is_some() {
+            "learned"
+        } else {
+            "geometric"
+        },
         runs,
         mean,
-        mean_total_ms: mean.voxelize_ms + mean.geodesic_ms + mean.weights_ms,
+        mean_total_ms: mean.voxelize_ms + mean.geodesic_ms + mean.model_ms + mean.weights_ms,
     };
     if a.json {
         println!("{}", serde_json::to_string_pretty(&report)?);
     } else {
         eprintln!(
-            "{}: {} vertices, {} bones: {:.1} ms (voxelize {:.1}, geodesic {:.1}, weights {:.1}; {} solid voxels, {} parts)",
-            report.input, report.vertices, report.bones, report.mean_total_ms, mean.voxelize_ms,
-            mean.geodesic_ms, mean.weights_ms, mean.solid_cells, mean.parts
+            "{}: {} vertices, {} bones, {}: {:.1} ms (voxelize {:.1}, geodesic {:.1}, model {:.1}, weights {:.1}; {} solid voxels, {} parts)",
+            report.input, report.vertices, report.bones, report.method, report.mean_total_ms, mean.voxelize_ms,
+            mean.geodesic_ms, mean.model_ms, mean.weights_ms, mean.solid_cells, mean.parts
         );
     }
     Ok(())

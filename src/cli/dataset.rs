@@ -1,4 +1,5 @@
-use rigserve::dataset::{build, DatasetConfig};
+use rigserve::dataset::skin::{build_skin, SkinDatasetConfig};
+use rigserve::dataset::{build, DatasetConfig, DatasetSummary};
 use rigserve::mesh::Limits;
 use std::path::Path;
 
@@ -11,6 +12,24 @@ pub fn run(
 ) -> anyhow::Result<()> {
     let entries = rigserve::eval::entries_in(dir, split)?;
     let summary = build(dir, &entries, out, &cfg, limits)?;
+    report(&summary, out);
+    Ok(())
+}
+
+pub fn run_skin(
+    dir: &Path,
+    split: Option<&str>,
+    out: &Path,
+    cfg: SkinDatasetConfig,
+    limits: &Limits,
+) -> anyhow::Result<()> {
+    let entries = rigserve::eval::entries_in(dir, split)?;
+    let summary = build_skin(dir, &entries, out, &cfg, limits)?;
+    report(&summary, out);
+    Ok(())
+}
+
+fn report(summary: &DatasetSummary, out: &Path) {
     eprintln!(
         "{} files -> {} items in {}",
         summary.files,
@@ -20,5 +39,4 @@ pub fn run(
     for (f, why) in &summary.skipped {
         eprintln!("skipped {f}: {why}");
     }
-    Ok(())
 }

@@ -68,7 +68,21 @@ pub fn run(a: EvalArgs) -> anyhow::Result<()> {
             &limits,
         )?
     } else if a.skin_on_gt {
-        rigserve::eval::skin::eval_skin_on_gt(&a.dataset, split, &a.skin.config(), &limits)?
+        let model = a.skin.load_model(a.model.ort_lib.as_deref())?;
+        eprintln!(
+            "skin method: {}",
+            model.as_ref().map_or("geometric".to_string(), |m| format!(
+                "learned ({})",
+                m.path().display()
+            ))
+        );
+        rigserve::eval::skin::eval_skin_on_gt(
+            &a.dataset,
+            split,
+            &a.skin.config(),
+            model.as_ref(),
+            &limits,
+        )?
     } else {
         anyhow::bail!("say what to score: --pred DIR, --baseline, --skeleton-only or --skin-on-gt");
     };

@@ -91,6 +91,14 @@ pub struct DatasetArgs {
     /// Files whose skeletons have more bones are skipped.
     #[arg(long, default_value_t = 128)]
     pub max_bones: usize,
+    /// Write the skin model's data set instead (vertices, candidate bones, features and
+    /// the artist's weights; see `src/dataset/skin.rs`). `--points` is then the most
+    /// vertices per item.
+    #[arg(long)]
+    pub skin: bool,
+    /// With --skin: candidate bones per vertex.
+    #[arg(long, default_value_t = rigserve::rig::skin::LEARNED_CANDIDATES)]
+    pub candidates: usize,
     #[command(flatten)]
     pub limits: LimitArgs,
 }
@@ -98,6 +106,24 @@ pub struct DatasetArgs {
 pub fn run(cli: Cli) -> anyhow::Result<()> {
     match cli.command {
         Command::Inspect { file, json, limits } => inspect::run(&file, json, &limits.limits()),
+        Command::Dataset(a) if a.skin => {
+            let cfg = rigserve::dataset::skin::SkinDatasetConfig {
+                rows: a.points,
+                k: a.candidates,
+                augment: a.augment,
+                seed: a.seed,
+                max_bones: a.max_bones,
+                skin: Default::default(),
+                augment_config: Default::default(),
+            };
+            dataset::run_skin(
+                &a.input,
+                a.split.as_deref(),
+                &a.out,
+                cfg,
+                &a.limits.limits(),
+            )
+        }
         Command::Dataset(a) => {
             let cfg = rigserve::dataset::DatasetConfig {
                 points: a.points,

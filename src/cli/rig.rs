@@ -5,12 +5,12 @@ use anyhow::Context;
 use rigserve::export::{export_glb, BoneTreeError, ExportOptions};
 use rigserve::infer::{
     Backend, BackendConfig, ModelFiles, Runtime, SamplingParams, SessionConfig, SkeletonModel,
-    Variant,
+    SkinModel, Variant,
 };
 use rigserve::mesh;
 use rigserve::predict::{predict_skeleton, PredictConfig};
 use rigserve::rig::groundtruth::extract;
-use rigserve::rig::skin::{skin_timed, SkinConfig};
+use rigserve::rig::skin::{skin_with_timed, SkinConfig};
 use rigserve::rig::Skeleton;
 use std::path::{Path, PathBuf};
 
@@ -109,9 +109,45 @@ pub struct SkinArgs {
     /// Influences below this weight are dropped.
     #[arg(long, default_value_t = SkinConfig::default().min_weight)]
     pub min_weight: f32,
+    /// auto: the learned skin model when `--skin-model` holds one, else geometric weights;
+    /// learned: the model or an error; geometric: never the model.
+    #[arg(long, value_enum, default_value_t = SkinMethod::Auto)]
+    pub skin_method: SkinMethod,
+    /// The learned skin model: an ONNX file, its folder, or a models root holding `skin/`.
+    #[arg(long, env = "RIGSERVE_SKIN_MODEL", default_value = "models")]
+    pub skin_model: PathBuf,
+}
+
+#[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
+pub enum SkinMethod {
+    Auto,
+    Learned,
+    Geometric,
 }
 
 impl SkinArgs {
+    /// The learned model `--skin-method` asks for, loaded on ONNX Runtime (`ort_lib`, as
+    /// `--ort-lib`); None means geometric weights.
+    pub fn load_model(&self, ort_lib: Option<&Path>) -> anyhow::Result<Option<SkinModel>> {
+        let found = match self.skin_method {
+            SkinMethod::Geometric => return Ok(None),
+            SkinMethod::Auto => SkinModel::find(&self.skin_model),
+            SkinMethod::Learned => Some(SkinModel::find(&self.skin_model).ok_or_else(|| {
+                anyhow::anyhow!(
+                    "no skin model (skin.onnx or skin.fp16.onnx) under {} [model_not_found]",
+                    self.skin_model.display()
+                )
+            })?),
+        };
+        let Some(file) = found else {
+            return Ok(None);
+        };
+        let rt = Runtime::init(ort_lib).map_err(|e| anyhow::anyhow!("{e} [{}]", e.code()))?;
+        SkinModel::load(&rt, &file, &SessionConfig::default())
+            .map(Some)
+            .map_err(|e| anyhow::anyhow!("{e} [{}]", e.code()))
+    }
+
     pub fn config(&self) -> SkinConfig {
         SkinConfig {
             resolution: self.voxels,
@@ -232,19 +268,22 @@ pub fn run(a: RigArgs) -> anyhow::Result<()> {
     let Some(out) = &a.out else {
         return Ok(());
     };
-    let (weights, t) = skin_timed(&asset.mesh, &skeleton, &a.skin.config())
+    let model = a.skin.load_model(a.model.ort_lib.as_deref())?;
+    let (weights, t) = skin_with_timed(&asset.mesh, &skeleton, &a.skin.config(), model.as_ref())
         .map_err(|e| anyhow::anyhow!("{e} [{}]", e.code()))?;
     let glb = export_glb(&asset, &skeleton, &weights, &ExportOptions::default())
         .map_err(|e| anyhow::anyhow!("{e} [{}]", e.code()))?;
     std::fs::write(out, glb).with_context(|| format!("writing {}", out.display()))?;
     eprintln!(
-        "{}: skinned {} vertices to {} bones in {:.0} ms (voxels {:.0}, geodesic {:.0}, weights {:.0}) -> {}",
+        "{}: skinned {} vertices to {} bones ({}) in {:.0} ms (voxels {:.0}, geodesic {:.0}, model {:.0}, weights {:.0}) -> {}",
         a.input.display(),
         weights.per_vertex.len(),
         skeleton.len(),
-        t.voxelize_ms + t.geodesic_ms + t.weights_ms,
+        if model.is_some() { "learned" } else { "geometric" },
+        t.voxelize_ms + t.geodesic_ms + t.model_ms + t.weights_ms,
         t.voxelize_ms,
         t.geodesic_ms,
+        t.model_ms,
         t.weights_ms,
         out.display()
     );

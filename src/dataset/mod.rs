@@ -8,6 +8,7 @@
 //!   augmentation, token sequence, bone count, normalization).
 
 pub mod augment;
+pub mod skin;
 
 use crate::eval::ManifestEntry;
 use crate::mesh::{self, sample_surface, Limits, Mesh, Normalization};

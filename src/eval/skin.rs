@@ -1,17 +1,19 @@
-//! `rigserve eval --skin-on-gt`: rigserve's skinning given the artist's skeleton, scored
+//! `rigserve eval --skin-on-gt`: rigserve's skinning (learned model or geometric) given the artist's skeleton, scored
 //! against the artist's weights. The skeleton is the ground truth, so the skeleton
 //! figures are zero and the skin figures measure the weights alone.
 
 use super::{entries_in, err, load_rig, summarize, EvalError, ModelReport, Report, POSE_SEED};
+use crate::infer::SkinModel;
 use crate::mesh::Limits;
 use crate::rig::metrics::{score_skeleton, score_skin, Frame};
-use crate::rig::skin::{skin, SkinConfig};
+use crate::rig::skin::{skin_with, SkinConfig};
 use std::path::Path;
 
 pub fn eval_skin_on_gt(
     dataset: &Path,
     split: Option<&str>,
     cfg: &SkinConfig,
+    model: Option<&SkinModel>,
     limits: &Limits,
 ) -> Result<Report, EvalError> {
     let mut models = Vec::new();
@@ -24,7 +26,7 @@ pub fn eval_skin_on_gt(
                 report.joints_pred = gt.skeleton.len();
                 let frame = Frame::from_points(&mesh.positions);
                 report.skeleton = Some(score_skeleton(&gt.skeleton, &gt.skeleton, &frame));
-                let scored = skin(&mesh, &gt.skeleton, cfg)
+                let scored = skin_with(&mesh, &gt.skeleton, cfg, model)
                     .map_err(|e| err(e.code(), e))
                     .and_then(|w| {
                         score_skin(

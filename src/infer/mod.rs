@@ -24,6 +24,7 @@ mod kv;
 mod model;
 mod runtime;
 pub mod sampling;
+mod skin_model;
 
 pub use backend::{
     Backend, BackendConfig, FinishReason, Generation, Metrics, MetricsSnapshot, Pending,
@@ -34,3 +35,4 @@ pub use kv::KvCache;
 pub use model::{ModelFiles, ModelInfo, SessionConfig, SkeletonModel, Variant, CONTRACT};
 pub use runtime::{resolve_library, Runtime, ORT_LIB_DEFAULT, ORT_LIB_ENV, ORT_LIB_NAME};
 pub use sampling::{Sampler, SamplingParams};
+pub use skin_model::{SkinModel, ROWS_PER_CALL, SKIN_CONTRACT};

@@ -126,7 +126,11 @@ impl std::fmt::Debug for SkeletonModel {
     }
 }
 
-fn open_session(rt: &Runtime, path: &Path, cfg: &SessionConfig) -> Result<Session, InferError> {
+pub(super) fn open_session(
+    rt: &Runtime,
+    path: &Path,
+    cfg: &SessionConfig,
+) -> Result<Session, InferError> {
     if !path.is_file() {
         return Err(InferError::ModelNotFound(path.to_path_buf()));
     }
@@ -148,20 +152,20 @@ fn open_session(rt: &Runtime, path: &Path, cfg: &SessionConfig) -> Result<Sessio
 
 /// A dimension as the contract states it.
 #[derive(Clone, Copy)]
-enum Dim {
+pub(super) enum Dim {
     /// Must be dynamic: it changes from call to call (batch, sequence lengths).
     Dynamic,
     /// Must be this size, or dynamic.
     Is(usize),
 }
 
-struct Expect<'a> {
-    name: &'a str,
-    ty: TensorElementType,
-    dims: &'a [Dim],
+pub(super) struct Expect<'a> {
+    pub(super) name: &'a str,
+    pub(super) ty: TensorElementType,
+    pub(super) dims: &'a [Dim],
 }
 
-fn check_outlets(
+pub(super) fn check_outlets(
     path: &Path,
     what: &str,
     got: &[Outlet],

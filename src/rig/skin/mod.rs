@@ -13,23 +13,34 @@
 //! of every bone's volume (a hat above the head, a sword held loose) is bound rigidly to
 //! the single bone nearest to it on average, as an artist parents a prop.
 //!
-//! This is also the distance feature and the fallback of the learned skin model.
+//! This is also the distance feature and the fallback of the learned skin model:
+//! [`candidates_timed`] gives each vertex its nearest allowed bones, [`features`] what the
+//! model reads, and [`skin_with`] lets the model choose among those bones when one is
+//! loaded ([`crate::infer::SkinModel`], `models/skin/`).
 
 mod components;
+pub mod features;
 mod geodesic;
+mod learned;
 mod validate;
 mod voxel;
 mod weights;
 
+use crate::infer::SkinModel;
 use crate::mesh::Mesh;
 use crate::rig::metrics::Segment;
 use crate::rig::skeleton::SkeletonError;
 use crate::rig::{Skeleton, SkinWeights};
 use geodesic::{Ring, Stamp, Stencils, Volume};
 use glam::Vec3;
+pub use learned::from_scores;
 use serde::Serialize;
 use std::time::Instant;
 use voxel::{Grid, Region};
+
+/// Candidate bones per vertex the learned model chooses among: more than the four kept
+/// influences, so it can pass over bones artists leave unweighted.
+pub const LEARNED_CANDIDATES: usize = 8;
 
 /// The most cells along the longest side, so memory stays bounded (~7 MB of flags).
 pub const MAX_RESOLUTION: usize = 192;
@@ -105,6 +116,10 @@ pub enum SkinError {
     BadTriangle(usize),
     #[error("invalid skinning configuration: {0}")]
     BadConfig(String),
+    /// The learned model failed; `code` is the inference layer's
+    /// ([`crate::infer::InferError::code`]).
+    #[error("the skin model failed: {message}")]
+    Model { code: &'static str, message: String },
 }
 
 impl SkinError {
@@ -116,6 +131,7 @@ impl SkinError {
             SkinError::NonFiniteMesh => "skin_non_finite_mesh",
             SkinError::BadTriangle(_) => "skin_bad_triangle",
             SkinError::BadConfig(_) => "skin_bad_config",
+            SkinError::Model { code, .. } => code,
         }
     }
 }
@@ -126,6 +142,8 @@ pub struct SkinTimings {
     pub voxelize_ms: f64,
     pub geodesic_ms: f64,
     pub weights_ms: f64,
+    /// Features and the learned model (zero for geometric weights).
+    pub model_ms: f64,
     pub solid_cells: usize,
     pub parts: usize,
 }
@@ -138,6 +156,31 @@ pub struct SkinTimings {
 /// [`SkinError`] for what is refused. Deterministic: equal inputs give equal weights.
 pub fn skin(mesh: &Mesh, skeleton: &Skeleton, cfg: &SkinConfig) -> Result<SkinWeights, SkinError> {
     skin_timed(mesh, skeleton, cfg).map(|(w, _)| w)
+}
+
+/// [`skin`] with the learned model when one is given (see [`SkinModel`]), the geometric
+/// weights otherwise. Same guarantees as [`skin`]; the model only chooses among each
+/// vertex's nearest allowed bones, so the per-part rules still hold.
+pub fn skin_with(
+    mesh: &Mesh,
+    skeleton: &Skeleton,
+    cfg: &SkinConfig,
+    model: Option<&SkinModel>,
+) -> Result<SkinWeights, SkinError> {
+    skin_with_timed(mesh, skeleton, cfg, model).map(|(w, _)| w)
+}
+
+/// [`skin_with`], also reporting where the time went.
+pub fn skin_with_timed(
+    mesh: &Mesh,
+    skeleton: &Skeleton,
+    cfg: &SkinConfig,
+    model: Option<&SkinModel>,
+) -> Result<(SkinWeights, SkinTimings), SkinError> {
+    match model {
+        Some(m) => learned::skin_learned_timed(mesh, skeleton, cfg, m),
+        None => skin_timed(mesh, skeleton, cfg),
+    }
 }
 
 /// How a part of the mesh chooses its bones.
@@ -156,7 +199,69 @@ pub fn skin_timed(
     skeleton: &Skeleton,
     cfg: &SkinConfig,
 ) -> Result<(SkinWeights, SkinTimings), SkinError> {
+    // Two spare candidates beyond the kept influences: enough for the inverse-distance
+    // blend, whose weights depend only on the nearest `max_influences`.
+    let (cands, mut times) = candidates_timed(mesh, skeleton, cfg, cfg.max_influences + 2)?;
+    let t2 = Instant::now();
+    let out = cands.geometric(cfg);
+    times.weights_ms = ms(t2);
+    Ok((out, times))
+}
+
+/// The bones a vertex may take, decided by the per-part rules of the module docs.
+#[derive(Clone, Debug, PartialEq)]
+pub enum VertexBones {
+    /// The part floats free: this bone alone, weight 1.
+    Rigid(u32),
+    /// The nearest allowed bones `(bone, distance in mesh units)`, nearest first;
+    /// geodesic through the volume, or straight-line when the volume does not reach
+    /// the vertex (`geodesic` false). Never empty: a part may always use at least one
+    /// bone, and a vertex outside every part may use them all.
+    Near {
+        bones: Vec<(u32, f32)>,
+        geodesic: bool,
+    },
+}
+
+/// Each vertex's candidate bones: what geometric weights blend and what the learned
+/// model rescores.
+#[derive(Clone, Debug)]
+pub struct Candidates {
+    pub per_vertex: Vec<VertexBones>,
+    /// Voxel size, in mesh units.
+    pub cell: f32,
+}
+
+impl Candidates {
+    /// Inverse-distance weights (`weights::from_distances`) over the candidates.
+    pub fn geometric(&self, cfg: &SkinConfig) -> SkinWeights {
+        let mut out = SkinWeights {
+            per_vertex: self
+                .per_vertex
+                .iter()
+                .map(|v| match v {
+                    VertexBones::Rigid(b) => vec![(*b, 1.0)],
+                    VertexBones::Near { bones, .. } => {
+                        weights::from_distances(bones, cfg, self.cell)
+                    }
+                })
+                .collect(),
+        };
+        out.normalize();
+        out
+    }
+}
+
+/// The `k` nearest allowed bones of every vertex (see [`Candidates`]), checked and
+/// timed like [`skin_timed`] (`weights_ms` is left at zero).
+pub fn candidates_timed(
+    mesh: &Mesh,
+    skeleton: &Skeleton,
+    cfg: &SkinConfig,
+    k: usize,
+) -> Result<(Candidates, SkinTimings), SkinError> {
     validate::check(mesh, skeleton, cfg)?;
+    let k = k.max(cfg.max_influences).max(1);
     let mut times = SkinTimings::default();
     let t0 = Instant::now();
     let pos = &mesh.positions;
@@ -249,7 +354,6 @@ pub fn skin_timed(
         .collect();
 
     let stencils = Stencils::new(&volume, pos);
-    let k = cfg.max_influences + 2;
     let mut nearest: Vec<Vec<(u32, f32)>> = vec![Vec::new(); pos.len()];
     let (mut dist, mut ring) = (Vec::new(), Ring::default());
     for (b, bone_seeds) in seeds.iter().enumerate() {
@@ -267,33 +371,39 @@ pub fn skin_timed(
             }
         }
     }
-    times.geodesic_ms = ms(t1);
 
-    let t2 = Instant::now();
-    let mut out = SkinWeights {
-        per_vertex: Vec::with_capacity(pos.len()),
-    };
-    for (v, cands) in nearest.iter_mut().enumerate() {
-        let binding = parts.of_vertex[v].map(|p| &bindings[p as usize]);
-        if let Some(Binding::Rigid(b)) = binding {
-            out.per_vertex.push(vec![(*b, 1.0)]);
-            continue;
-        }
-        if cands.is_empty() {
-            // Not reached through the volume: straight-line distance to the bones the
-            // part may use.
-            for (b, s) in segs.iter().enumerate() {
-                if !matches!(binding, Some(Binding::Bones(ok)) if !ok[b]) {
-                    insert_nearest(cands, (b as u32, s.distance(pos[v])), k);
+    let per_vertex = nearest
+        .into_iter()
+        .enumerate()
+        .map(|(v, mut cands)| {
+            let binding = parts.of_vertex[v].map(|p| &bindings[p as usize]);
+            if let Some(Binding::Rigid(b)) = binding {
+                return VertexBones::Rigid(*b);
+            }
+            let geodesic = !cands.is_empty();
+            if !geodesic {
+                // Not reached through the volume: straight-line distance to the bones the
+                // part may use.
+                for (b, s) in segs.iter().enumerate() {
+                    if !matches!(binding, Some(Binding::Bones(ok)) if !ok[b]) {
+                        insert_nearest(&mut cands, (b as u32, s.distance(pos[v])), k);
+                    }
                 }
             }
-        }
-        out.per_vertex
-            .push(weights::from_distances(cands, cfg, volume.grid.cell));
-    }
-    out.normalize();
-    times.weights_ms = ms(t2);
-    Ok((out, times))
+            VertexBones::Near {
+                bones: cands,
+                geodesic,
+            }
+        })
+        .collect();
+    times.geodesic_ms = ms(t1);
+    Ok((
+        Candidates {
+            per_vertex,
+            cell: volume.grid.cell,
+        },
+        times,
+    ))
 }
 
 fn ms(t: Instant) -> f64 {

@@ -1,0 +1,1 @@
+"""Learned skin model (see model.py)."""
