@@ -1,15 +1,31 @@
 #!/usr/bin/env bash
-# Installs what the tests use beyond cargo: the Khronos glTF validator (npm) and
-# headless Blender (PyPI bpy). Idempotent: a second run only checks.
+# Installs what the tests use beyond cargo: the Khronos glTF validator, playwright-core
+# and three.js (npm), headless Chromium (Debian `chromium`, for the viewer page tests)
+# and headless Blender (PyPI bpy). Idempotent: a second run only checks.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
 # `setup.sh ort` fetches only what running the service needs (ONNX Runtime).
 only_ort=${1:-}
 
-if [ "$only_ort" != "ort" ] && [ ! -d tools/node_modules/gltf-validator ]; then
-  echo "setup: installing gltf-validator (npm)"
+npm_missing() {
+  for p in gltf-validator ajv playwright-core three; do
+    [ -d "tools/node_modules/$p" ] || return 0
+  done
+  return 1
+}
+
+if [ "$only_ort" != "ort" ] && npm_missing; then
+  echo "setup: installing gltf-validator, playwright-core and three (npm)"
   npm ci --prefix tools --no-audit --no-fund --loglevel=error || npm install --prefix tools --no-audit --no-fund --loglevel=error
+fi
+
+if [ "$only_ort" != "ort" ] && [ ! -x /usr/bin/chromium ]; then
+  echo "setup: installing chromium (apt; the viewer page tests drive it headless)"
+  sudo_cmd=""
+  [ "$(id -u)" -eq 0 ] || sudo_cmd=sudo
+  $sudo_cmd apt-get update -qq
+  DEBIAN_FRONTEND=noninteractive $sudo_cmd apt-get install -y -qq chromium
 fi
 
 if [ "$only_ort" != "ort" ] && ! python3 -c "import bpy" >/dev/null 2>&1; then

@@ -2,7 +2,7 @@
 
 use super::LimitArgs;
 use anyhow::Context;
-use rigserve::export::{export_glb, BoneTreeError, ExportOptions};
+use rigserve::export::{export_glb, Animation, BoneTreeError, ExportOptions};
 use rigserve::infer::{
     Backend, BackendConfig, ModelFiles, Runtime, SamplingParams, SessionConfig, SkeletonModel,
     Variant,
@@ -139,6 +139,9 @@ pub struct RigArgs {
     /// Re-skin the skeleton the input file already has.
     #[arg(long)]
     pub skeleton_from_input: bool,
+    /// A test motion baked into the GLB as an animation clip: none or preview.
+    #[arg(long, default_value = "none", value_parser = parse_animation, conflicts_with = "skeleton_only")]
+    pub animation: Animation,
     /// Where to write the bone tree JSON; with --skeleton-only, standard output when absent.
     #[arg(long)]
     pub bones: Option<PathBuf>,
@@ -199,6 +202,10 @@ fn predict(a: &RigArgs, mesh: &mesh::Mesh) -> anyhow::Result<Skeleton> {
     Ok(pred.skeleton)
 }
 
+fn parse_animation(s: &str) -> Result<Animation, String> {
+    Animation::parse(s).ok_or_else(|| format!("{s:?} is not an animation: none or preview"))
+}
+
 pub fn run(a: RigArgs) -> anyhow::Result<()> {
     if !a.skeleton_only && a.out.is_none() {
         anyhow::bail!("rig: say where the rigged GLB goes with -o OUT.glb, or pass --skeleton-only to predict the skeleton alone");
@@ -234,7 +241,11 @@ pub fn run(a: RigArgs) -> anyhow::Result<()> {
     };
     let (weights, t) = skin_timed(&asset.mesh, &skeleton, &a.skin.config())
         .map_err(|e| anyhow::anyhow!("{e} [{}]", e.code()))?;
-    let glb = export_glb(&asset, &skeleton, &weights, &ExportOptions::default())
+    let export = ExportOptions {
+        animation: a.animation,
+        ..ExportOptions::default()
+    };
+    let glb = export_glb(&asset, &skeleton, &weights, &export)
         .map_err(|e| anyhow::anyhow!("{e} [{}]", e.code()))?;
     std::fs::write(out, glb).with_context(|| format!("writing {}", out.display()))?;
     eprintln!(

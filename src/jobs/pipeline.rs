@@ -121,7 +121,11 @@ pub fn run(
     check(p)?;
 
     p.stage(Stage::Exporting);
-    let glb = export_glb(&asset, &skeleton, &weights, &ExportOptions::default())
+    let export = ExportOptions {
+        animation: options.animation,
+        ..ExportOptions::default()
+    };
+    let glb = export_glb(&asset, &skeleton, &weights, &export)
         .map_err(|e| StageError::new(e.code(), e))?;
     Ok(Rigged {
         glb,
