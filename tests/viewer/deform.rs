@@ -205,7 +205,7 @@ async fn blender_three_js_and_rigserve_deform_alike() {
         ("template", "mixamo".to_string()),
         ("animation", "preview".to_string()),
     ];
-    let rigs = vec![
+    let rigs = [
         rig(&app, "given", &given("none"), &out).await,
         rig(&app, "given_preview", &given("preview"), &out).await,
         rig(&app, "predicted_preview", &predicted, &out).await,
