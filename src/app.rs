@@ -5,6 +5,7 @@
 use crate::api::auth::{ApiKeys, KeysError};
 use crate::api::metrics::{DecodeMetrics, HttpMetrics};
 use crate::api::{router, ApiConfig, AppState, SnapshotFn};
+use crate::infer::SkinModel;
 use crate::infer::{
     Backend, BackendConfig, InferError, ModelFiles, Runtime, SessionConfig, SkeletonModel, Variant,
 };
@@ -158,22 +159,23 @@ pub struct Application {
     _engine: Arc<Engine>,
 }
 
-fn load_backend(m: &ModelSetup) -> Result<Backend, InferError> {
+/// The skeleton model's inference thread, and the learned skin model when the models
+/// folder has one (`skin/`; geometric weights otherwise).
+fn load_models(m: &ModelSetup) -> Result<(Backend, Option<SkinModel>), InferError> {
     let rt = Runtime::init(m.ort_lib.as_deref())?;
-    let model = SkeletonModel::load(
-        &rt,
-        &ModelFiles::in_dir(&m.dir, m.variant),
-        &SessionConfig {
-            intra_threads: m.threads,
-        },
-    )?;
-    Backend::new(
+    let session = SessionConfig {
+        intra_threads: m.threads,
+    };
+    let model = SkeletonModel::load(&rt, &ModelFiles::in_dir(&m.dir, m.variant), &session)?;
+    let skin = SkinModel::load_if_present(&rt, &m.dir, &session)?;
+    let backend = Backend::new(
         model,
         BackendConfig {
             max_batch: m.max_batch,
             kv_cache: true,
         },
-    )
+    )?;
+    Ok((backend, skin))
 }
 
 impl Application {
@@ -213,10 +215,24 @@ impl Application {
         let job_metrics = JobMetrics::new(&registry)?;
         let http_metrics = HttpMetrics::new(&registry)?;
         let runs_jobs = cfg.role != Role::Api;
-        let backend = match (&cfg.model, runs_jobs) {
-            (Some(m), true) => Some(load_backend(m)?),
-            _ => None,
+        let (backend, skin_model) = match (&cfg.model, runs_jobs) {
+            (Some(m), true) => {
+                let (b, s) = load_models(m)?;
+                (Some(b), s)
+            }
+            _ => (None, None),
         };
+        if runs_jobs {
+            info!(
+                learned = skin_model.is_some(),
+                "skin weights: {}",
+                if skin_model.is_some() {
+                    "learned model"
+                } else {
+                    "geometric"
+                }
+            );
+        }
         let keys = match &cfg.api_keys_file {
             Some(p) => ApiKeys::from_file(p)?,
             None => ApiKeys::disabled(),
@@ -242,6 +258,7 @@ impl Application {
             skeleton: backend,
             limits: cfg.limits,
             skin: SkinConfig::default(),
+            skin_model,
             max_samples: cfg.max_samples,
             max_bones: cfg.max_bones,
         });

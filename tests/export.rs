@@ -831,6 +831,7 @@ fn influences_are_capped_and_the_bone_tree_is_optional() {
     let opts = ExportOptions {
         max_influences: 2,
         embed_bone_tree: false,
+        ..Default::default()
     };
     let glb = export_glb(&input, &skel, &weights, &opts).unwrap();
     let out = load(&glb, &Limits::default()).unwrap();

@@ -16,8 +16,13 @@ head), both in the glTF world frame (Y up); without a pivot, the bone's head as
 Blender shows it is used. The bone and everything parented to it turn rigidly by that world-space
 rotation; the rest stays at rest.
 
+A file's own animation is switched off for a bone job (pose bones back to identity, the
+bind pose). A job with `"time": SECONDS` instead of a bone plays the file's first animation clip to
+that time instead (glTF seconds, converted to frames at the scene's rate from the
+action's first frame); `rest` is then the mesh with its armature modifiers turned off.
+
 OUT.json is a list with one result per job, every position in the glTF world frame:
-    {"file", "bone", "armatures", "joints", "vertex_groups", "skinned_objects",
+    {"file", "bone", "armatures", "joints", "vertex_groups", "skinned_objects", "actions",
      "bone_heads": {name: [x, y, z]}, "rest": [[x, y, z], ...], "posed": [[x, y, z], ...]}
 `rest[i]` and `posed[i]` are the same Blender vertex before and after posing, over the
 face vertices of every mesh object in the scene (the importer's bone display shape
@@ -78,6 +83,20 @@ def run_job(job):
         if not m.vertex_groups:
             raise CheckError(f"skinned mesh {m.name!r} has no vertex groups")
 
+    if "time" in job:
+        return run_clip_job(job, armatures, meshes, skinned)
+
+    for a in armatures:
+        if a.animation_data and a.animation_data.action:
+            # The importer plays a file's clip, which would both move the "rest" vertices
+            # and override the pose set below. Without it, the rest pose is the bind pose
+            # the importer reads from the inverse bind matrices (identity pose bones);
+            # callers compare rest positions, so a wrong rest cannot pass unnoticed.
+            a.animation_data.action = None
+            for pb in a.pose.bones:
+                pb.matrix_basis = Matrix.Identity(4)
+    bpy.context.view_layer.update()
+
     owner = [a for a in armatures if job["bone"] in a.pose.bones]
     if not owner:
         raise CheckError(f"no armature has a bone named {job['bone']!r}")
@@ -119,7 +138,40 @@ def run_job(job):
         "joints": sum(len(a.data.bones) for a in armatures),
         "vertex_groups": sum(len(m.vertex_groups) for m in skinned),
         "skinned_objects": len(skinned),
+        "actions": len(bpy.data.actions),
         "bone_heads": bone_heads,
+        "rest": rest,
+        "posed": posed,
+    }
+
+
+def run_clip_job(job, armatures, meshes, skinned):
+    animated = [a for a in armatures if a.animation_data and a.animation_data.action]
+    if not animated:
+        raise CheckError("no armature has an animation")
+    action = animated[0].animation_data.action
+    scene = bpy.context.scene
+    fps = scene.render.fps / scene.render.fps_base
+    modifiers = [mod for m in skinned for mod in m.modifiers if mod.type == "ARMATURE"]
+    for mod in modifiers:
+        mod.show_viewport = False
+    bpy.context.view_layer.update()
+    rest = world_vertices(meshes)
+    for mod in modifiers:
+        mod.show_viewport = True
+    frame = action.frame_range[0] + job["time"] * fps
+    scene.frame_set(int(frame), subframe=frame - int(frame))
+    bpy.context.view_layer.update()
+    posed = world_vertices(meshes)
+    return {
+        "file": job["file"],
+        "time": job["time"],
+        "frame": frame,
+        "armatures": len(armatures),
+        "joints": sum(len(a.data.bones) for a in armatures),
+        "vertex_groups": sum(len(m.vertex_groups) for m in skinned),
+        "skinned_objects": len(skinned),
+        "actions": len(bpy.data.actions),
         "rest": rest,
         "posed": posed,
     }

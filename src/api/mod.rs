@@ -9,6 +9,7 @@ pub mod jobs;
 pub mod metrics;
 pub mod rig;
 pub mod upload;
+pub mod viewer;
 
 use crate::infer::MetricsSnapshot;
 use crate::jobs::Context;
@@ -137,6 +138,7 @@ pub fn router(state: AppState, http: HttpMetrics) -> Router {
         .merge(sync)
         .merge(quick)
         .merge(streams)
+        .merge(viewer::routes())
         .fallback(no_route)
         .method_not_allowed_fallback(wrong_method)
         .layer(body_limit)

@@ -8,7 +8,7 @@ use rigserve::infer::{Backend, BackendConfig, MetricsSnapshot, SamplingParams, S
 use rigserve::mesh::{self, sample::SplitMix64};
 use rigserve::predict::{mesh_samples, predict_from_samples, PredictConfig, MODEL_POINTS};
 use rigserve::rig::groundtruth::extract;
-use rigserve::rig::skin::{skin_with_timed, SkinTimings};
+use rigserve::rig::skin::{skin_with_timed, CandidateScorer, SkinTimings};
 use rigserve::rig::tokenizer::{BOS, CLS_NONE};
 use serde::Serialize;
 use std::path::PathBuf;
@@ -131,8 +131,13 @@ fn skin(a: SkinArgs) -> anyhow::Result<()> {
     let model = a.skin.load_model(a.ort_lib.as_deref())?;
     let mut runs = Vec::new();
     for r in 0..=a.repeat {
-        let (_, t) = skin_with_timed(&asset.mesh, &skeleton, &cfg, model.as_ref())
-            .map_err(|e| anyhow::anyhow!("{e} [{}]", e.code()))?;
+        let (_, t) = skin_with_timed(
+            &asset.mesh,
+            &skeleton,
+            &cfg,
+            model.as_ref().map(|m| m as &dyn CandidateScorer),
+        )
+        .map_err(|e| anyhow::anyhow!("{e} [{}]", e.code()))?;
         if r > 0 {
             runs.push(t);
         }

@@ -2,7 +2,7 @@
 
 use super::LimitArgs;
 use anyhow::Context;
-use rigserve::export::{export_glb, BoneTreeError, ExportOptions};
+use rigserve::export::{export_glb, Animation, BoneTreeError, ExportOptions};
 use rigserve::infer::{
     Backend, BackendConfig, ModelFiles, Runtime, SamplingParams, SessionConfig, SkeletonModel,
     SkinModel, Variant,
@@ -10,7 +10,7 @@ use rigserve::infer::{
 use rigserve::mesh;
 use rigserve::predict::{predict_skeleton, PredictConfig};
 use rigserve::rig::groundtruth::extract;
-use rigserve::rig::skin::{skin_with_timed, SkinConfig};
+use rigserve::rig::skin::{skin_with_timed, CandidateScorer, SkinConfig};
 use rigserve::rig::Skeleton;
 use std::path::{Path, PathBuf};
 
@@ -175,6 +175,9 @@ pub struct RigArgs {
     /// Re-skin the skeleton the input file already has.
     #[arg(long)]
     pub skeleton_from_input: bool,
+    /// A test motion baked into the GLB as an animation clip: none or preview.
+    #[arg(long, default_value = "none", value_parser = parse_animation, conflicts_with = "skeleton_only")]
+    pub animation: Animation,
     /// Where to write the bone tree JSON; with --skeleton-only, standard output when absent.
     #[arg(long)]
     pub bones: Option<PathBuf>,
@@ -235,6 +238,10 @@ fn predict(a: &RigArgs, mesh: &mesh::Mesh) -> anyhow::Result<Skeleton> {
     Ok(pred.skeleton)
 }
 
+fn parse_animation(s: &str) -> Result<Animation, String> {
+    Animation::parse(s).ok_or_else(|| format!("{s:?} is not an animation: none or preview"))
+}
+
 pub fn run(a: RigArgs) -> anyhow::Result<()> {
     if !a.skeleton_only && a.out.is_none() {
         anyhow::bail!("rig: say where the rigged GLB goes with -o OUT.glb, or pass --skeleton-only to predict the skeleton alone");
@@ -269,9 +276,18 @@ pub fn run(a: RigArgs) -> anyhow::Result<()> {
         return Ok(());
     };
     let model = a.skin.load_model(a.model.ort_lib.as_deref())?;
-    let (weights, t) = skin_with_timed(&asset.mesh, &skeleton, &a.skin.config(), model.as_ref())
-        .map_err(|e| anyhow::anyhow!("{e} [{}]", e.code()))?;
-    let glb = export_glb(&asset, &skeleton, &weights, &ExportOptions::default())
+    let (weights, t) = skin_with_timed(
+        &asset.mesh,
+        &skeleton,
+        &a.skin.config(),
+        model.as_ref().map(|m| m as &dyn CandidateScorer),
+    )
+    .map_err(|e| anyhow::anyhow!("{e} [{}]", e.code()))?;
+    let export = ExportOptions {
+        animation: a.animation,
+        ..ExportOptions::default()
+    };
+    let glb = export_glb(&asset, &skeleton, &weights, &export)
         .map_err(|e| anyhow::anyhow!("{e} [{}]", e.code()))?;
     std::fs::write(out, glb).with_context(|| format!("writing {}", out.display()))?;
     eprintln!(

@@ -6,7 +6,7 @@ use super::{entries_in, err, load_rig, summarize, EvalError, ModelReport, Report
 use crate::infer::SkinModel;
 use crate::mesh::Limits;
 use crate::rig::metrics::{score_skeleton, score_skin, Frame};
-use crate::rig::skin::{skin_with, SkinConfig};
+use crate::rig::skin::{skin_with, CandidateScorer, SkinConfig};
 use std::path::Path;
 
 pub fn eval_skin_on_gt(
@@ -26,20 +26,25 @@ pub fn eval_skin_on_gt(
                 report.joints_pred = gt.skeleton.len();
                 let frame = Frame::from_points(&mesh.positions);
                 report.skeleton = Some(score_skeleton(&gt.skeleton, &gt.skeleton, &frame));
-                let scored = skin_with(&mesh, &gt.skeleton, cfg, model)
+                let scored = skin_with(
+                    &mesh,
+                    &gt.skeleton,
+                    cfg,
+                    model.map(|m| m as &dyn CandidateScorer),
+                )
+                .map_err(|e| err(e.code(), e))
+                .and_then(|w| {
+                    score_skin(
+                        &gt.skeleton,
+                        &w,
+                        &gt.skeleton,
+                        &gt.weights,
+                        &mesh.positions,
+                        &frame,
+                        POSE_SEED,
+                    )
                     .map_err(|e| err(e.code(), e))
-                    .and_then(|w| {
-                        score_skin(
-                            &gt.skeleton,
-                            &w,
-                            &gt.skeleton,
-                            &gt.weights,
-                            &mesh.positions,
-                            &frame,
-                            POSE_SEED,
-                        )
-                        .map_err(|e| err(e.code(), e))
-                    });
+                });
                 match scored {
                     Ok(s) => {
                         report.skin = Some(s);

@@ -6,7 +6,7 @@
 
 use super::builder::{Builder, ARRAY_BUFFER, ELEMENT_ARRAY_BUFFER, FLOAT, UNSIGNED_INT};
 use super::weights::Packed;
-use super::{bonetree, ExportError, ExportOptions};
+use super::{animation, bonetree, Animation, ExportError, ExportOptions};
 use crate::mesh::Mesh;
 use crate::rig::Skeleton;
 use glam::{Mat4, Vec3};
@@ -98,6 +98,9 @@ pub(crate) fn build(
     let joints = b.push_joint_nodes(skel)?;
     let skin = b.push_skin(skel, &joints, &Mat4::IDENTITY)?;
     b.array("nodes")?[mesh_node]["skin"] = skin.into();
+    if opts.animation == Animation::Preview {
+        animation::push_preview(&mut b, skel, &joints)?;
+    }
 
     let mut scene_nodes = vec![mesh_node];
     scene_nodes.extend(&joints.scene_roots);

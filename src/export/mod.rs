@@ -14,6 +14,7 @@
 //! as JSON in `scenes[scene].extras.rigserve` (see [`bonetree`] and
 //! `proto/bone_tree.schema.json`), because glTF joints have no tails and no spring flag.
 
+pub mod animation;
 pub mod bonetree;
 mod builder;
 mod container;
@@ -22,6 +23,7 @@ pub mod glb;
 mod rewrite;
 mod weights;
 
+pub use animation::Animation;
 pub use bonetree::{bone_tree, parse_bone_tree, BoneTreeError, BONE_TREE_FRAME, BONE_TREE_VERSION};
 pub use glb::export_glb;
 
@@ -35,6 +37,8 @@ pub struct ExportOptions {
     pub max_influences: usize,
     /// Write the bone tree JSON into the default scene's `extras.rigserve`.
     pub embed_bone_tree: bool,
+    /// A test motion to bake in as an animation clip (see [`animation`]).
+    pub animation: Animation,
 }
 
 impl Default for ExportOptions {
@@ -42,6 +46,7 @@ impl Default for ExportOptions {
         ExportOptions {
             max_influences: 4,
             embed_bone_tree: true,
+            animation: Animation::None,
         }
     }
 }

@@ -20,13 +20,15 @@
 //!   used by more than one node is duplicated, because `JOINTS_0`/`WEIGHTS_0` live on
 //!   the primitive while weights are per instance.
 //! - Points and lines primitives (not part of the merged mesh) are left as they were.
+//! - With `animation=preview`, the preview clip is appended to `animations` (see
+//!   [`super::animation`]); the input's remaining animations stay beside it.
 //! - The bone tree goes into the default scene's `extras.rigserve` (an `extras` that is
 //!   not an object is kept under `extras.original`); `asset.generator` becomes
 //!   "rigserve". Everything else, unknown fields included, is copied untouched.
 
 use super::builder::{affine, Builder};
 use super::weights::Packed;
-use super::{bonetree, ExportError, ExportOptions};
+use super::{animation, bonetree, Animation, ExportError, ExportOptions};
 use crate::mesh::gltf::Document;
 use crate::mesh::{Mesh, Part};
 use crate::rig::Skeleton;
@@ -130,6 +132,10 @@ pub(crate) fn rewrite(
             attrs.insert("JOINTS_0".into(), j.into());
             attrs.insert("WEIGHTS_0".into(), w.into());
         }
+    }
+
+    if opts.animation == Animation::Preview {
+        animation::push_preview(&mut b, skel, &joints)?;
     }
 
     let reskinned: HashSet<usize> = by_node.keys().copied().collect();

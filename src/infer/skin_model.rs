@@ -221,3 +221,9 @@ mod tests {
         );
     }
 }
+
+impl crate::rig::skin::CandidateScorer for SkinModel {
+    fn scores(&self, f: &SkinFeatures) -> Result<Vec<f32>, (&'static str, String)> {
+        self.weights(f).map_err(|e| (e.code(), e.to_string()))
+    }
+}

@@ -1,5 +1,6 @@
 //! What a job is: its options, its state, and the events clients follow.
 
+use crate::export::Animation;
 use chrono::{DateTime, Utc};
 use serde::{Deserialize, Serialize};
 
@@ -121,6 +122,8 @@ pub struct JobOptions {
     /// predicting one.
     pub skin_only: bool,
     pub webhook_url: Option<String>,
+    /// A test motion baked into the GLB as an animation clip.
+    pub animation: Animation,
 }
 
 impl Default for JobOptions {
@@ -134,6 +137,7 @@ impl Default for JobOptions {
             skeleton: None,
             skin_only: false,
             webhook_url: None,
+            animation: Animation::None,
         }
     }
 }
@@ -229,5 +233,8 @@ mod tests {
         assert_eq!(o.seed, 3);
         assert_eq!(o.samples, 4);
         assert!(serde_json::from_str::<JobOptions>(r#"{"sed": 3}"#).is_err());
+        let o: JobOptions = serde_json::from_str(r#"{"animation": "preview"}"#).unwrap();
+        assert_eq!(o.animation, Animation::Preview);
+        assert!(serde_json::from_str::<JobOptions>(r#"{"animation": "dance"}"#).is_err());
     }
 }

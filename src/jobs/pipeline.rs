@@ -6,10 +6,11 @@
 use super::model::{JobOptions, Stage, TemplateChoice};
 use crate::export::{bone_tree, export_glb, parse_bone_tree, ExportOptions};
 use crate::infer::Backend;
+use crate::infer::SkinModel;
 use crate::mesh::{self, Limits};
 use crate::predict::{mesh_samples, predict_from_samples, PredictConfig, TemplateMode};
 use crate::rig::groundtruth;
-use crate::rig::skin::{skin, SkinConfig};
+use crate::rig::skin::{skin_with, CandidateScorer, SkinConfig};
 use crate::rig::Skeleton;
 use std::sync::Arc;
 
@@ -19,6 +20,8 @@ pub struct Engine {
     pub skeleton: Option<Backend>,
     pub limits: Limits,
     pub skin: SkinConfig,
+    /// The learned skin model; `None`: geometric weights.
+    pub skin_model: Option<SkinModel>,
     /// Candidates per job at most (`samples` is clamped to it).
     pub max_samples: usize,
     /// Bones per skeleton at most (`max_bones` is clamped to it).
@@ -116,12 +119,20 @@ pub fn run(
     check(p)?;
 
     p.stage(Stage::Skinning);
-    let weights =
-        skin(&asset.mesh, &skeleton, &engine.skin).map_err(|e| StageError::new(e.code(), e))?;
+    let scorer = engine
+        .skin_model
+        .as_ref()
+        .map(|m| m as &dyn CandidateScorer);
+    let weights = skin_with(&asset.mesh, &skeleton, &engine.skin, scorer)
+        .map_err(|e| StageError::new(e.code(), e))?;
     check(p)?;
 
     p.stage(Stage::Exporting);
-    let glb = export_glb(&asset, &skeleton, &weights, &ExportOptions::default())
+    let export = ExportOptions {
+        animation: options.animation,
+        ..ExportOptions::default()
+    };
+    let glb = export_glb(&asset, &skeleton, &weights, &export)
         .map_err(|e| StageError::new(e.code(), e))?;
     Ok(Rigged {
         glb,

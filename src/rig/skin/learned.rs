@@ -4,8 +4,9 @@
 //! the per-part rules of the module docs hold whichever method runs.
 
 use super::features::{features, SkinFeatures};
-use super::{candidates_timed, ms, Candidates, SkinConfig, SkinError, SkinTimings};
-use crate::infer::SkinModel;
+use super::{
+    candidates_timed, ms, CandidateScorer, Candidates, SkinConfig, SkinError, SkinTimings,
+};
 use crate::mesh::Mesh;
 use crate::rig::{Skeleton, SkinWeights};
 use std::time::Instant;
@@ -15,7 +16,7 @@ pub fn skin_learned_timed(
     mesh: &Mesh,
     skeleton: &Skeleton,
     cfg: &SkinConfig,
-    model: &SkinModel,
+    model: &dyn CandidateScorer,
 ) -> Result<(SkinWeights, SkinTimings), SkinError> {
     let (cands, mut times) = candidates_timed(mesh, skeleton, cfg, super::LEARNED_CANDIDATES)?;
     let t = Instant::now();
@@ -23,10 +24,9 @@ pub fn skin_learned_timed(
     let scores = if f.rows.is_empty() {
         Vec::new()
     } else {
-        model.weights(&f).map_err(|e| SkinError::Model {
-            code: e.code(),
-            message: e.to_string(),
-        })?
+        model
+            .scores(&f)
+            .map_err(|(code, message)| SkinError::Model { code, message })?
     };
     times.model_ms = ms(t);
     let t = Instant::now();

@@ -16,7 +16,7 @@
 //! This is also the distance feature and the fallback of the learned skin model:
 //! [`candidates_timed`] gives each vertex its nearest allowed bones, [`features`] what the
 //! model reads, and [`skin_with`] lets the model choose among those bones when one is
-//! loaded ([`crate::infer::SkinModel`], `models/skin/`).
+//! loaded (a [`CandidateScorer`]: `infer::SkinModel` runs `models/skin/`).
 
 mod components;
 pub mod features;
@@ -26,7 +26,6 @@ mod validate;
 mod voxel;
 mod weights;
 
-use crate::infer::SkinModel;
 use crate::mesh::Mesh;
 use crate::rig::metrics::Segment;
 use crate::rig::skeleton::SkeletonError;
@@ -158,14 +157,25 @@ pub fn skin(mesh: &Mesh, skeleton: &Skeleton, cfg: &SkinConfig) -> Result<SkinWe
     skin_timed(mesh, skeleton, cfg).map(|(w, _)| w)
 }
 
-/// [`skin`] with the learned model when one is given (see [`SkinModel`]), the geometric
+/// What the learned skin model is to this module: it scores each vertex's candidate
+/// bones from their features. Implemented by `infer::SkinModel`; a trait so that `rig`
+/// does not depend on the inference layer that depends on it.
+pub use features::SkinFeatures;
+
+pub trait CandidateScorer: Send + Sync {
+    /// One score per row of `f` (per vertex, per candidate); on failure a stable code
+    /// and a message.
+    fn scores(&self, f: &SkinFeatures) -> Result<Vec<f32>, (&'static str, String)>;
+}
+
+/// [`skin`] with the learned model when one is given (see [`CandidateScorer`]), the geometric
 /// weights otherwise. Same guarantees as [`skin`]; the model only chooses among each
 /// vertex's nearest allowed bones, so the per-part rules still hold.
 pub fn skin_with(
     mesh: &Mesh,
     skeleton: &Skeleton,
     cfg: &SkinConfig,
-    model: Option<&SkinModel>,
+    model: Option<&dyn CandidateScorer>,
 ) -> Result<SkinWeights, SkinError> {
     skin_with_timed(mesh, skeleton, cfg, model).map(|(w, _)| w)
 }
@@ -175,7 +185,7 @@ pub fn skin_with_timed(
     mesh: &Mesh,
     skeleton: &Skeleton,
     cfg: &SkinConfig,
-    model: Option<&SkinModel>,
+    model: Option<&dyn CandidateScorer>,
 ) -> Result<(SkinWeights, SkinTimings), SkinError> {
     match model {
         Some(m) => learned::skin_learned_timed(mesh, skeleton, cfg, m),
