@@ -30,28 +30,6 @@ impl Drop for Restart {
     }
 }
 
-async fn wait_job(c: &reqwest::Client, base: &str, id: &str) -> Value {
-    let t = Instant::now();
-    loop {
-        let j: Value = c
-            .get(format!("{base}/v1/jobs/{id}"))
-            .send()
-            .await
-            .unwrap()
-            .json()
-            .await
-            .unwrap();
-        if !matches!(j["status"].as_str(), Some("queued" | "running") | None) {
-            return j;
-        }
-        assert!(
-            t.elapsed() < Duration::from_secs(120),
-            "job {id} never ended"
-        );
-        tokio::time::sleep(Duration::from_millis(100)).await;
-    }
-}
-
 #[tokio::test]
 async fn the_service_rides_out_a_database_restart() {
     if let Some(why) = missing() {
@@ -79,7 +57,10 @@ async fn the_service_rides_out_a_database_restart() {
     };
     let first: Value = submit().await.unwrap().json().await.unwrap();
     let id = first["id"].as_str().unwrap().to_string();
-    assert_eq!(wait_job(&c, &r.base, &id).await["status"], "succeeded");
+    assert_eq!(
+        wait_job(&c, &r.base, &id, Duration::from_secs(120)).await["status"],
+        "succeeded"
+    );
 
     let _guard = Restart;
     assert!(pg_ctl("stop"), "pg_ctlcluster stop failed");
@@ -129,6 +110,12 @@ async fn the_service_rides_out_a_database_restart() {
     let again = submit().await.unwrap();
     assert_eq!(again.status(), 202);
     let again: Value = again.json().await.unwrap();
-    let j = wait_job(&c, &r.base, again["id"].as_str().unwrap()).await;
+    let j = wait_job(
+        &c,
+        &r.base,
+        again["id"].as_str().unwrap(),
+        Duration::from_secs(120),
+    )
+    .await;
     assert_eq!(j["status"], "succeeded", "{j}");
 }

@@ -3,6 +3,8 @@
 //! recovery after kill -9.
 
 mod helpers;
+#[path = "../cluster/infra.rs"]
+mod infra;
 mod openapi;
 mod restart;
 

@@ -129,32 +129,17 @@ pub async fn start_s3() -> S3 {
     }
 }
 
-pub struct Replica {
-    pub base: String,
-    pub child: Kill,
-    _data: tempfile::TempDir,
-}
-
-/// Starts `rigserve serve` on the shared database and bucket; `extra` adds flags.
-pub fn start_replica(db: &str, s3: &S3, role: &str, extra: &[&str]) -> Replica {
-    let data = tempfile::tempdir().unwrap();
+/// Runs `rigserve serve` as a child process with `args` (the model flags and a random
+/// port are added) and returns it with its base URL, read from its first line.
+pub fn spawn_serve(args: &[String], envs: &[(&str, &str)]) -> (Kill, String) {
     let mut child = Command::new(env!("CARGO_BIN_EXE_rigserve"))
-        .args(["serve", "--bind", "127.0.0.1:0", "--role", role])
-        .args(["--database-url", db])
-        .arg("--blob-url")
-        .arg(format!("s3://{}/jobs-test", s3.bucket))
-        .arg("--data-dir")
-        .arg(data.path())
+        .args(["serve", "--bind", "127.0.0.1:0"])
         .arg("--models")
         .arg(repo().join("models"))
         .arg("--ort-lib")
         .arg(repo().join(".onnxruntime/libonnxruntime.so.1.31.1"))
-        .args(["--poll", "0.05", "--sweep-every", "0.3", "--lease", "2"])
-        .args(extra)
-        .env("AWS_ENDPOINT_URL", &s3.endpoint)
-        .env("AWS_ACCESS_KEY_ID", "test")
-        .env("AWS_SECRET_ACCESS_KEY", "test")
-        .env("AWS_REGION", "us-east-1")
+        .args(args)
+        .envs(envs.iter().copied())
         .current_dir(repo())
         .stdout(Stdio::piped())
         .stderr(Stdio::null())
@@ -167,13 +152,88 @@ pub fn start_replica(db: &str, s3: &S3, role: &str, extra: &[&str]) -> Replica {
     let base = line
         .trim()
         .strip_prefix("rigserve listening on ")
-        .unwrap_or_else(|| panic!("replica did not start: {line:?}"))
+        .unwrap_or_else(|| panic!("rigserve did not start: {line:?}"))
         .to_string();
+    (Kill(child), base)
+}
+
+pub struct Replica {
+    pub base: String,
+    pub child: Kill,
+    _data: tempfile::TempDir,
+}
+
+/// Starts a replica on the shared database and bucket; `extra` adds flags.
+pub fn start_replica(db: &str, s3: &S3, role: &str, extra: &[&str]) -> Replica {
+    let data = tempfile::tempdir().unwrap();
+    let mut args: Vec<String> = [
+        "--role",
+        role,
+        "--database-url",
+        db,
+        "--poll",
+        "0.05",
+        "--sweep-every",
+        "0.3",
+        "--lease",
+        "2",
+    ]
+    .iter()
+    .map(|s| s.to_string())
+    .collect();
+    args.push(format!("--blob-url=s3://{}/jobs-test", s3.bucket));
+    args.push(format!("--data-dir={}", data.path().display()));
+    args.extend(extra.iter().map(|s| s.to_string()));
+    let envs = [
+        ("AWS_ENDPOINT_URL", s3.endpoint.as_str()),
+        ("AWS_ACCESS_KEY_ID", "test"),
+        ("AWS_SECRET_ACCESS_KEY", "test"),
+        ("AWS_REGION", "us-east-1"),
+    ];
+    let (child, base) = spawn_serve(&args, &envs);
     Replica {
         base,
-        child: Kill(child),
+        child,
         _data: data,
     }
+}
+
+/// GET a job; its JSON (Null when the answer is not JSON).
+pub async fn job(c: &reqwest::Client, base: &str, id: &str) -> serde_json::Value {
+    let r = c.get(format!("{base}/v1/jobs/{id}")).send().await.unwrap();
+    r.json().await.unwrap_or(serde_json::Value::Null)
+}
+
+/// Polls until the job is no longer queued or running; panics after `timeout`.
+pub async fn wait_job(
+    c: &reqwest::Client,
+    base: &str,
+    id: &str,
+    timeout: Duration,
+) -> serde_json::Value {
+    let t = Instant::now();
+    loop {
+        let j = job(c, base, id).await;
+        if !matches!(j["status"].as_str(), Some("queued" | "running") | None) {
+            return j;
+        }
+        assert!(t.elapsed() < timeout, "job {id} never ended: {j}");
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+}
+
+/// Submits `mesh` (OBJ) with `query`; returns the job id.
+pub async fn submit_obj(c: &reqwest::Client, base: &str, query: &str, mesh: &[u8]) -> String {
+    let r = c
+        .post(format!("{base}/v1/jobs{query}"))
+        .header("content-type", "model/obj")
+        .body(mesh.to_vec())
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r.status(), 202);
+    let v: serde_json::Value = r.json().await.unwrap();
+    v["id"].as_str().unwrap().to_string()
 }
 
 pub fn figure(path: &Path) -> Vec<u8> {

@@ -28,20 +28,7 @@ async fn replicas_share_jobs_and_survive_a_killed_worker() {
     let mesh = figure(&repo().join("tests/corpus/base.obj"));
     let mut ids = Vec::new();
     for seed in 0..6 {
-        let r = c
-            .post(format!("{}/v1/jobs?seed={seed}", a.base))
-            .header("content-type", "model/obj")
-            .body(mesh.clone())
-            .send()
-            .await
-            .unwrap();
-        assert_eq!(r.status(), 202);
-        ids.push(
-            r.json::<Value>().await.unwrap()["id"]
-                .as_str()
-                .unwrap()
-                .to_string(),
-        );
+        ids.push(submit_obj(&c, &a.base, &format!("?seed={seed}"), &mesh).await);
     }
     // B sees A's jobs at once (one store).
     let r = c
@@ -79,18 +66,9 @@ async fn replicas_share_jobs_and_survive_a_killed_worker() {
     // A new worker replica takes over the queue and, once its lease ends, A's job.
     let _w = start_replica(&db, &s3, "worker", &["--workers", "2"]);
 
-    let deadline = Instant::now() + Duration::from_secs(180);
     for id in &ids {
-        loop {
-            let (_, j) = get_json(&c, format!("{}/v1/jobs/{id}", b.base)).await;
-            match j["status"].as_str().unwrap() {
-                "succeeded" => break,
-                "queued" | "running" => {}
-                other => panic!("job {id} ended {other}: {j}"),
-            }
-            assert!(Instant::now() < deadline, "job {id} never finished");
-            tokio::time::sleep(Duration::from_millis(50)).await;
-        }
+        let j = wait_job(&c, &b.base, id, Duration::from_secs(180)).await;
+        assert_eq!(j["status"], "succeeded", "{j}");
         let r = c
             .get(format!("{}/v1/jobs/{id}/result.glb", b.base))
             .send()
