@@ -192,6 +192,12 @@ impl SkinModel {
     }
 }
 
+impl crate::rig::skin::CandidateScorer for SkinModel {
+    fn scores(&self, f: &SkinFeatures) -> Result<Vec<f32>, (&'static str, String)> {
+        self.weights(f).map_err(|e| (e.code(), e.to_string()))
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -219,11 +225,5 @@ mod tests {
             SkinModel::find(&root.join("skin/skin.fp16.onnx")),
             Some(root.join("skin/skin.fp16.onnx"))
         );
-    }
-}
-
-impl crate::rig::skin::CandidateScorer for SkinModel {
-    fn scores(&self, f: &SkinFeatures) -> Result<Vec<f32>, (&'static str, String)> {
-        self.weights(f).map_err(|e| (e.code(), e.to_string()))
     }
 }
