@@ -155,19 +155,7 @@ impl Worker {
             tokio::select! {
                 r = &mut task => break r,
                 Some(stage) = stages.recv() => {
-                    if current.is_some_and(|(s, _)| s == stage) {
-                        continue;
-                    }
-                    if let Some((s, t)) = current.replace((stage, Instant::now())) {
-                        self.ctx.metrics.observe_stage(s, t.elapsed().as_secs_f64());
-                    }
-                    let lease = self.ctx.store
-                        .progress(&job.id, &self.id, stage, stage.start_progress(), self.cfg.lease)
-                        .await;
-                    self.ctx.notifier.changed(&job.id);
-                    if matches!(lease, Ok(Lease::Lost)) {
-                        progress.canceled.store(true, Ordering::Relaxed);
-                    }
+                    self.record_stage(&job, stage, &mut current, &progress).await;
                 }
                 _ = heartbeat.tick() => {
                     if matches!(self.ctx.store.heartbeat(&job.id, &self.id, self.cfg.lease).await, Ok(Lease::Lost)) {
@@ -189,6 +177,12 @@ impl Worker {
                 }
             }
         };
+        // Stages the pipeline reported just before it returned are still in the channel:
+        // record them, so every stage a job went through is an event.
+        while let Ok(stage) = stages.try_recv() {
+            self.record_stage(&job, stage, &mut current, &progress)
+                .await;
+        }
         if let Some((s, t)) = current {
             self.ctx.metrics.observe_stage(s, t.elapsed().as_secs_f64());
         }
@@ -211,6 +205,38 @@ impl Worker {
             }),
         };
         self.finish(&job, outcome, started).await;
+    }
+
+    /// Records a stage the pipeline entered (an event; the lease is extended), and the
+    /// time spent in the one it left. A lost lease cancels the pipeline.
+    async fn record_stage(
+        &self,
+        job: &Job,
+        stage: Stage,
+        current: &mut Option<(Stage, Instant)>,
+        progress: &JobProgress,
+    ) {
+        if current.is_some_and(|(s, _)| s == stage) || progress.canceled() {
+            return;
+        }
+        if let Some((s, t)) = current.replace((stage, Instant::now())) {
+            self.ctx.metrics.observe_stage(s, t.elapsed().as_secs_f64());
+        }
+        let lease = self
+            .ctx
+            .store
+            .progress(
+                &job.id,
+                &self.id,
+                stage,
+                stage.start_progress(),
+                self.cfg.lease,
+            )
+            .await;
+        self.ctx.notifier.changed(&job.id);
+        if matches!(lease, Ok(Lease::Lost)) {
+            progress.canceled.store(true, Ordering::Relaxed);
+        }
     }
 
     async fn store_results(
