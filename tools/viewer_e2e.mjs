@@ -74,7 +74,14 @@ try {
     }
     return n;
   });
-  report.overlayPixels = await overlayPixels();
+  // A loaded machine may not have drawn the first frame yet: give it up to 5 s.
+  let px = 0;
+  for (let i = 0; i < 50; i++) {
+    px = await overlayPixels();
+    if (px > 50) break;
+    await page.waitForTimeout(100);
+  }
+  report.overlayPixels = px;
   await page.screenshot({ path: join(outDir, 'rest.png') });
 
   const bone = Math.min(1, report.loaded.joints - 1);
