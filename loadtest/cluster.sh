@@ -21,13 +21,20 @@ db="rigserve_lt_$$"
 psql -q -h 127.0.0.1 -U postgres -c "CREATE DATABASE $db" >/dev/null
 export RIGSERVE_DATABASE_URL="postgres://postgres@127.0.0.1:5432/$db"
 export RIGSERVE_BLOB_URL="s3://loadtest/blobs"
-export AWS_ENDPOINT_URL=http://127.0.0.1:18433 AWS_ACCESS_KEY_ID=lt AWS_SECRET_ACCESS_KEY=lt AWS_REGION=us-east-1
 
 (cd "$work" && exec weed server -dir="$work" -ip=127.0.0.1 -ip.bind=127.0.0.1 -s3 \
   -master.port=19433 -volume.port=18481 -filer.port=18988 -s3.port=18433 \
   -s3.port.iceberg=18434 -s3.port.lance=18435 -master.volumeSizeLimitMB=64 >"$work/weed.log" 2>&1) &
 pids+=($!)
-until curl -s -o /dev/null -X PUT http://127.0.0.1:18433/loadtest; do sleep 0.5; done
+for _ in $(seq 1 120); do
+  code=$(curl -s -o /dev/null -w '%{http_code}' -X PUT http://127.0.0.1:18433/loadtest || true)
+  [ "$code" = 200 ] || [ "$code" = 409 ] && break
+  sleep 0.5
+done
+sleep 3 # the filer answers bucket creation before listings work
+
+# After SeaweedFS started: with AWS keys in its environment it would require them.
+export AWS_ENDPOINT_URL=http://127.0.0.1:18433 AWS_ACCESS_KEY_ID=lt AWS_SECRET_ACCESS_KEY=lt AWS_REGION=us-east-1
 
 start() { # role port extra...
   local role=$1 port=$2; shift 2
@@ -35,7 +42,14 @@ start() { # role port extra...
     >"$work/$role-$port.log" 2>&1 &
   pids+=($!)
   last_pid=$!
-  until curl -sf "http://127.0.0.1:$port/readyz" >/dev/null; do sleep 0.3; done
+  for _ in $(seq 1 100); do
+    curl -sf "http://127.0.0.1:$port/readyz" >/dev/null && return 0
+    sleep 0.3
+  done
+  echo "replica $role on $port never became ready:" >&2
+  tail -5 "$work/$role-$port.log" >&2
+  curl -s "http://127.0.0.1:$port/readyz" >&2 || true
+  exit 1
 }
 
 start api 18500; api=$last_pid
