@@ -107,21 +107,6 @@ pub async fn submit(
         }
         None => None,
     };
-    // Type first: a wrong type is refused before the body is read.
-    let declared_type = req
-        .headers()
-        .get(header::CONTENT_TYPE)
-        .and_then(|v| v.to_str().ok())
-        .map(|v| {
-            v.split(';')
-                .next()
-                .unwrap_or("")
-                .trim()
-                .to_ascii_lowercase()
-        });
-    if declared_type.as_deref() != Some("multipart/form-data") {
-        upload::declared_format(declared_type.as_deref())?;
-    }
     let up = upload::read(req, limit, &state.cfg.tmp_dir).await?;
     let declared = upload::declared_format(up.content_type.as_deref())?;
     upload::check_magic(declared, &up.bytes)?;

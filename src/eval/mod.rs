@@ -297,6 +297,29 @@ pub fn eval_baseline(
     ))
 }
 
+/// Loads every rig of the split and lets `score` fill its report (the ground truth's
+/// joint count is already in it); a file that does not load is reported with its error.
+pub(crate) fn each_rig(
+    dataset: &Path,
+    split: Option<&str>,
+    limits: &Limits,
+    mut score: impl FnMut(&ManifestEntry, &mesh::Mesh, &GroundTruth, &mut ModelReport),
+) -> Result<Vec<ModelReport>, EvalError> {
+    let mut models = Vec::new();
+    for e in entries_in(dataset, split)? {
+        let mut report = ModelReport::new(&e.file, &e.category);
+        match load_rig(&dataset.join(&e.file), limits) {
+            Err(info) => report.error = Some(info),
+            Ok((mesh, gt)) => {
+                report.joints_gt = gt.skeleton.len();
+                score(&e, &mesh, &gt, &mut report);
+            }
+        }
+        models.push(report);
+    }
+    Ok(models)
+}
+
 /// `rigserve eval --skeleton-only`: runs the skeleton model on every mesh of the split
 /// (the model sees only geometry, so the file's own rig is ignored) and scores the
 /// predicted skeleton against the artist's. With `category_hint`, the manifest's
@@ -309,33 +332,24 @@ pub fn eval_model_skeleton(
     category_hint: bool,
     limits: &Limits,
 ) -> Result<Report, EvalError> {
-    let mut models = Vec::new();
-    for e in entries_in(dataset, split)? {
-        let mut report = ModelReport::new(&e.file, &e.category);
-        match load_rig(&dataset.join(&e.file), limits) {
-            Err(info) => report.error = Some(info),
-            Ok((mesh, gt)) => {
-                report.joints_gt = gt.skeleton.len();
-                let cfg = crate::predict::PredictConfig {
-                    category: category_hint.then(|| e.category.clone()),
-                    ..cfg.clone()
-                };
-                match crate::predict::predict_skeleton(backend, &mesh, &cfg, None) {
-                    Ok(pred) => {
-                        report.joints_pred = pred.skeleton.len();
-                        report.valid = pred.skeleton.validate(cfg.max_bones).is_ok();
-                        report.skeleton = Some(score_skeleton(
-                            &pred.skeleton,
-                            &gt.skeleton,
-                            &Frame::from_points(&mesh.positions),
-                        ));
-                    }
-                    Err(e) => report.error = Some(err(e.code(), e)),
-                }
+    let models = each_rig(dataset, split, limits, |e, mesh, gt, report| {
+        let cfg = crate::predict::PredictConfig {
+            category: category_hint.then(|| e.category.clone()),
+            ..cfg.clone()
+        };
+        match crate::predict::predict_skeleton(backend, mesh, &cfg, None) {
+            Ok(pred) => {
+                report.joints_pred = pred.skeleton.len();
+                report.valid = pred.skeleton.validate(cfg.max_bones).is_ok();
+                report.skeleton = Some(score_skeleton(
+                    &pred.skeleton,
+                    &gt.skeleton,
+                    &Frame::from_points(&mesh.positions),
+                ));
             }
+            Err(e) => report.error = Some(err(e.code(), e)),
         }
-        models.push(report);
-    }
+    })?;
     let mode = if category_hint {
         "model_skeleton_with_category_hint"
     } else {

@@ -74,6 +74,13 @@ impl TestApp {
             .unwrap()
     }
 
+    /// Submits [`figure_obj`] with `query`; the job from the 202 answer.
+    pub async fn submit_figure(&self, query: &str) -> Value {
+        let r = self.post_mesh(figure_obj(), "model/obj", query).await;
+        assert_eq!(r.status(), 202);
+        r.json().await.unwrap()
+    }
+
     pub async fn get(&self, path: &str) -> Response {
         self.client.get(self.url(path)).send().await.unwrap()
     }

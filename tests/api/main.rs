@@ -238,18 +238,8 @@ async fn queued_jobs_can_be_canceled_and_the_queue_has_a_cap() {
         c.max_queued = 2;
     })
     .await;
-    let a: Value = app
-        .post_mesh(figure_obj(), "model/obj", "")
-        .await
-        .json()
-        .await
-        .unwrap();
-    let b: Value = app
-        .post_mesh(figure_obj(), "model/obj", "?seed=2")
-        .await
-        .json()
-        .await
-        .unwrap();
+    let a: Value = app.submit_figure("").await;
+    let b: Value = app.submit_figure("?seed=2").await;
     assert_eq!(a["queue_position"], 0);
     assert_eq!(b["queue_position"], 1);
     let r = app.post_mesh(figure_obj(), "model/obj", "?seed=3").await;
@@ -318,12 +308,7 @@ async fn idempotency_keys_replay_or_conflict() {
 #[tokio::test]
 async fn results_expire() {
     let app = spawn_app(|c| c.result_ttl = Duration::from_millis(600)).await;
-    let job: Value = app
-        .post_mesh(figure_obj(), "model/obj", "")
-        .await
-        .json()
-        .await
-        .unwrap();
+    let job: Value = app.submit_figure("").await;
     let id = id_of(&job);
     let done = app.wait_end(&id, JOB_TIMEOUT).await;
     assert_eq!(done["status"], "succeeded");
@@ -446,12 +431,7 @@ fn sse_events(text: &str) -> Vec<(i64, Value)> {
 #[tokio::test]
 async fn events_stream_to_the_end_and_resume() {
     let app = spawn_app(|_| {}).await;
-    let job: Value = app
-        .post_mesh(figure_obj(), "model/obj", "")
-        .await
-        .json()
-        .await
-        .unwrap();
+    let job: Value = app.submit_figure("").await;
     let id = id_of(&job);
     // The stream closes by itself after the terminal event.
     let r = app.get(&format!("/v1/jobs/{id}/events")).await;
@@ -516,12 +496,7 @@ async fn health_readiness_and_metrics() {
     let r: Value = app.get("/readyz").await.json().await.unwrap();
     assert_eq!(r["status"], "ready");
     assert_eq!(r["checks"]["skeleton_model"], "loaded");
-    let job: Value = app
-        .post_mesh(figure_obj(), "model/obj", "")
-        .await
-        .json()
-        .await
-        .unwrap();
+    let job: Value = app.submit_figure("").await;
     app.wait_end(&id_of(&job), JOB_TIMEOUT).await;
     app.get("/v1/jobs/missing").await;
     let m = app.get("/metrics").await.text().await.unwrap();
@@ -614,12 +589,7 @@ async fn concurrent_jobs_share_decode_batches() {
     let app = spawn_app(|c| c.workers = 4).await;
     let mut ids = Vec::new();
     for seed in 0..6 {
-        let j: Value = app
-            .post_mesh(figure_obj(), "model/obj", &format!("?seed={seed}"))
-            .await
-            .json()
-            .await
-            .unwrap();
+        let j: Value = app.submit_figure(&format!("?seed={seed}")).await;
         ids.push(id_of(&j));
     }
     for id in &ids {

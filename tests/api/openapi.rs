@@ -18,12 +18,7 @@ async fn every_documented_operation_is_served() {
         c.sync_timeout = std::time::Duration::from_millis(300);
     })
     .await;
-    let job: Value = app
-        .post_mesh(figure_obj(), "model/obj", "")
-        .await
-        .json()
-        .await
-        .unwrap();
+    let job: Value = app.submit_figure("").await;
     let id = job["id"].as_str().unwrap();
     let spec = spec();
     let mut ops = 0;
@@ -79,12 +74,7 @@ async fn every_documented_operation_is_served() {
 #[tokio::test]
 async fn job_fields_match_the_schema() {
     let app = spawn_app(|c| c.workers = 0).await;
-    let job: Value = app
-        .post_mesh(figure_obj(), "model/obj", "")
-        .await
-        .json()
-        .await
-        .unwrap();
+    let job: Value = app.submit_figure("").await;
     let spec = spec();
     let documented: BTreeSet<String> = spec["components"]["schemas"]["Job"]["properties"]
         .as_object()

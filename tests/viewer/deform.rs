@@ -2,7 +2,7 @@
 //! vertex lands where rigserve's own linear blend skinning puts it (within 1e-4), both for
 //! one bone turned by hand and for the baked preview clip sampled on a key.
 
-use super::helpers::{figure_obj, figure_skeleton, spawn_app, TestApp};
+use super::helpers::{figure_skeleton, spawn_app, TestApp};
 use super::{assert_valid, browser_ready, node, output_dir};
 use glam::{Mat4, Quat, Vec3};
 use rigserve::export::animation::{preview_pose, PREVIEW_CLIP};
@@ -35,12 +35,7 @@ async fn rig(app: &TestApp, label: &str, query: &[(&str, String)], dir: &Path) -
     let q: String = url::form_urlencoded::Serializer::new(String::new())
         .extend_pairs(query)
         .finish();
-    let job: Value = app
-        .post_mesh(figure_obj(), "model/obj", &format!("?{q}"))
-        .await
-        .json()
-        .await
-        .unwrap();
+    let job: Value = app.submit_figure(&format!("?{q}")).await;
     let id = job["id"].as_str().unwrap().to_string();
     let job = app.wait_end(&id, Duration::from_secs(120)).await;
     assert_eq!(job["status"], "succeeded", "{label}: {job}");
