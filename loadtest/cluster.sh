@@ -14,8 +14,21 @@ secs=${3:-30}
 bin=target/release/rigserve
 work=$(mktemp -d)
 pids=()
-cleanup() { for p in "${pids[@]}"; do kill "$p" 2>/dev/null || true; done; rm -rf "$work"; }
+cleanup() {
+  for p in "${pids[@]}"; do kill "$p" 2>/dev/null || true; done
+  # Wait for them: a SeaweedFS left running from an earlier run keeps the ports, and the
+  # next run's replicas then talk to a server whose data folder is gone (HTTP 500).
+  for p in "${pids[@]}"; do wait "$p" 2>/dev/null || true; done
+  rm -rf "$work"
+}
 trap cleanup EXIT
+
+for port in 19433 18481 18988 18433 18434 18435 18500 18501 18502; do
+  if (exec 3<>"/dev/tcp/127.0.0.1/$port") 2>/dev/null; then
+    echo "port $port is in use (a SeaweedFS or rigserve left from an earlier run?)" >&2
+    exit 1
+  fi
+done
 
 db="rigserve_lt_$$"
 psql -q -h 127.0.0.1 -U postgres -c "CREATE DATABASE $db" >/dev/null

@@ -10,6 +10,7 @@ use crate::infer::{
     Backend, BackendConfig, InferError, ModelFiles, Runtime, SessionConfig, SkeletonModel, Variant,
 };
 use crate::jobs::pipeline::Engine;
+use crate::jobs::slots::CpuSlots;
 use crate::jobs::sql::SqlStore;
 use crate::jobs::sweeper::{self, SweeperConfig};
 use crate::jobs::webhook::WebhookError;
@@ -66,6 +67,9 @@ pub struct Config {
     pub request_timeout: Duration,
     pub upload_timeout: Duration,
     pub workers: usize,
+    /// Jobs skinning and exporting at once (`CpuSlots`); 0: one core fewer than the
+    /// machine has.
+    pub cpu_jobs: usize,
     pub max_queued: u64,
     pub lease: Duration,
     pub poll: Duration,
@@ -97,7 +101,8 @@ impl Config {
             sync_timeout: Duration::from_secs(120),
             request_timeout: Duration::from_secs(30),
             upload_timeout: Duration::from_secs(300),
-            workers: 4,
+            workers: 6,
+            cpu_jobs: 0,
             max_queued: 1000,
             lease: Duration::from_secs(30),
             poll: Duration::from_millis(500),
@@ -261,6 +266,10 @@ impl Application {
             skin_model,
             max_samples: cfg.max_samples,
             max_bones: cfg.max_bones,
+            cpu_slots: CpuSlots::new(match cfg.cpu_jobs {
+                0 => CpuSlots::default_permits(),
+                n => n,
+            }),
         });
         let (decode, engine_metrics) = if skeleton_model {
             let e = engine.clone();

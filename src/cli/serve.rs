@@ -61,8 +61,12 @@ pub struct ServeArgs {
     pub upload_timeout: Duration,
     /// Jobs run at once (their skeleton candidates share decode batches); 0 runs no
     /// worker in this process (API only).
-    #[arg(long, env = "RIGSERVE_WORKERS", default_value_t = 4)]
+    #[arg(long, env = "RIGSERVE_WORKERS", default_value_t = 6)]
     pub workers: usize,
+    /// Of those, jobs skinning and exporting at once (CPU-bound); 0: one core fewer than
+    /// the machine has (at least 1), which leaves a core to the decoder.
+    #[arg(long, env = "RIGSERVE_CPU_JOBS", default_value_t = 0)]
+    pub cpu_jobs: usize,
     /// Queued jobs at most; more get 429.
     #[arg(long, env = "RIGSERVE_MAX_QUEUED", default_value_t = 1000)]
     pub max_queued: u64,
@@ -137,6 +141,7 @@ pub fn run(a: ServeArgs) -> anyhow::Result<()> {
     cfg.request_timeout = a.request_timeout;
     cfg.upload_timeout = a.upload_timeout;
     cfg.workers = a.workers;
+    cfg.cpu_jobs = a.cpu_jobs;
     cfg.max_queued = a.max_queued;
     cfg.lease = a.lease;
     cfg.poll = a.poll;

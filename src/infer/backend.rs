@@ -664,21 +664,43 @@ impl Worker {
             Ok(p) => p,
             Err(e) => return fail_jobs(&self.metrics, jobs, e),
         };
+        // A job's candidates share the mesh (one prefix) and the prompt, so their
+        // prefills are the same: run each distinct row once and copy it to the others.
+        // Prefill is the costliest call per row (every prefix position), so best-of-N
+        // would otherwise pay N times for one result.
+        let mut distinct: Vec<usize> = Vec::with_capacity(jobs.len());
+        let of_row: Vec<usize> = (0..jobs.len())
+            .map(|j| {
+                let same = |&u: &usize| {
+                    Arc::ptr_eq(&prefixes[u], &prefixes[j]) && jobs[u].prompt == jobs[j].prompt
+                };
+                distinct.iter().position(same).unwrap_or_else(|| {
+                    distinct.push(j);
+                    distinct.len() - 1
+                })
+            })
+            .collect();
         let mut stacked = Array3::<f32>::zeros((
-            jobs.len(),
+            distinct.len(),
             self.model.info().n_latents,
             self.model.info().d_model,
         ));
-        for (j, p) in prefixes.iter().enumerate() {
-            stacked.index_axis_mut(Axis(0), j).assign(p);
+        for (r, &j) in distinct.iter().enumerate() {
+            stacked.index_axis_mut(Axis(0), r).assign(&prefixes[j]);
         }
-        let prompts: Vec<&[u32]> = jobs.iter().map(|j| j.prompt.as_slice()).collect();
+        let prompts: Vec<&[u32]> = distinct
+            .iter()
+            .map(|&j| jobs[j].prompt.as_slice())
+            .collect();
         let t = Instant::now();
         let res = self.model.prefill(&stacked, &prompts);
         Metrics::add_time(&self.metrics.prefill_ns, t);
         Metrics::add(&self.metrics.prefill_calls, 1);
-        Metrics::add(&self.metrics.prefill_rows, jobs.len() as u64);
+        Metrics::add(&self.metrics.prefill_rows, distinct.len() as u64);
         let (logits, cache) = match res {
+            Ok((logits, cache)) if distinct.len() < jobs.len() => {
+                (logits.select(Axis(0), &of_row), cache)
+            }
             Ok(x) => x,
             Err(e) => return fail_jobs(&self.metrics, jobs, e),
         };
@@ -709,15 +731,18 @@ impl Worker {
         );
         if kv {
             let t = Instant::now();
-            let joined = if keep.len() == slots.len() {
-                Ok(cache)
-            } else {
-                cache.select(&keep)
-            }
-            .and_then(|new| match self.cache.take() {
-                Some(old) => KvCache::concat(old, new),
-                None => Ok(new),
-            });
+            // The prefill's rows for the items still going (one row may serve several).
+            let rows: Vec<usize> = keep.iter().map(|&i| of_row[i]).collect();
+            let joined =
+                if rows.len() == cache.batch() && rows.iter().enumerate().all(|(i, &r)| i == r) {
+                    Ok(cache)
+                } else {
+                    cache.select(&rows)
+                }
+                .and_then(|new| match self.cache.take() {
+                    Some(old) => KvCache::concat(old, new),
+                    None => Ok(new),
+                });
             Metrics::add(&self.metrics.cache_rebuilds, 1);
             Metrics::add_time(&self.metrics.cache_ns, t);
             match joined {

@@ -10,6 +10,7 @@ pub mod events;
 pub mod metrics;
 pub mod model;
 pub mod pipeline;
+pub mod slots;
 pub mod sql;
 pub mod store;
 pub mod sweeper;

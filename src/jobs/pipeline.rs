@@ -4,6 +4,7 @@
 //! batched with the other jobs' candidates.
 
 use super::model::{JobOptions, Stage, TemplateChoice};
+use super::slots::CpuSlots;
 use crate::export::{bone_tree, export_glb, parse_bone_tree, ExportOptions};
 use crate::infer::Backend;
 use crate::infer::SkinModel;
@@ -26,6 +27,8 @@ pub struct Engine {
     pub max_samples: usize,
     /// Bones per skeleton at most (`max_bones` is clamped to it).
     pub max_bones: usize,
+    /// Jobs skinning and exporting at once (see [`CpuSlots`]).
+    pub cpu_slots: CpuSlots,
 }
 
 /// A failed job's code and message.
@@ -119,6 +122,10 @@ pub fn run(
     check(p)?;
 
     p.stage(Stage::Skinning);
+    let _slot = engine
+        .cpu_slots
+        .acquire(|| p.canceled())
+        .ok_or_else(|| StageError::new("canceled", "the job was canceled"))?;
     let scorer = engine
         .skin_model
         .as_ref()

@@ -145,14 +145,55 @@ impl Volume {
     }
 
     /// Fills `dist` (one entry per grid cell) with the geodesic distance from `seeds`,
-    /// in tenths of a cell; cells that are not reached stay [`UNREACHED`].
-    pub fn field(&self, seeds: &[(u32, u32)], dist: &mut Vec<u32>, ring: &mut Ring) {
-        dist.clear();
-        dist.resize(self.solid.len(), UNREACHED);
+    /// in tenths of a cell; cells that are not reached stay [`UNREACHED`]. Pass the same
+    /// `dist` and `ring` to every call: only the cells the last field set are reset.
+    ///
+    /// With `bounds = Some((nearest, joins))`, the field stops wherever `nearest.k`
+    /// fields that joined `nearest` are strictly nearer (see [`Nearest`]): those cells,
+    /// and the cells past them, keep a larger value or stay unreached, and each cell's k
+    /// nearest are exact all the same. With `joins`, this field's values join them.
+    pub fn field(
+        &self,
+        seeds: &[(u32, u32)],
+        dist: &mut Vec<u32>,
+        ring: &mut Ring,
+        bounds: Option<(&mut Nearest, bool)>,
+    ) {
+        // One loop per case, so the unbounded walk pays nothing for the bounds. Until k
+        // fields have joined there is no bound: those walk unbounded, and join in one
+        // pass over the solid cells afterwards (cheaper than inserting as they settle).
+        match bounds {
+            None => self.walk::<false, false>(seeds, dist, ring, None),
+            Some((n, joins)) if n.joined < n.k => {
+                self.walk::<false, false>(seeds, dist, ring, None);
+                if joins {
+                    n.fill(self, dist);
+                }
+            }
+            Some((n, false)) => self.walk::<true, false>(seeds, dist, ring, Some(n)),
+            Some((n, true)) => self.walk::<true, true>(seeds, dist, ring, Some(n)),
+        }
+    }
+
+    fn walk<const BOUNDED: bool, const JOINS: bool>(
+        &self,
+        seeds: &[(u32, u32)],
+        dist: &mut Vec<u32>,
+        ring: &mut Ring,
+        mut nearest: Option<&mut Nearest>,
+    ) {
+        if dist.len() == self.solid.len() {
+            for &c in &ring.touched {
+                dist[c as usize] = UNREACHED;
+            }
+        } else {
+            dist.clear();
+            dist.resize(self.solid.len(), UNREACHED);
+        }
+        ring.clear();
         let Some(start) = seeds.iter().map(|s| s.1).min() else {
             return;
         };
-        ring.clear();
         for &(c, d) in seeds {
             if d < dist[c as usize] {
                 dist[c as usize] = d;
@@ -166,6 +207,16 @@ impl Volume {
                 if dist[c] != cur {
                     // Settled earlier at a shorter distance.
                     continue;
+                }
+                if let Some(k) = nearest.as_deref_mut().filter(|_| BOUNDED) {
+                    // Checked where a cell settles, not at each of its 26 neighbours: a
+                    // cell past the bound keeps its value but goes no further.
+                    if cur > k.kth[c] {
+                        continue;
+                    }
+                    if JOINS {
+                        k.insert(c, cur);
+                    }
                 }
                 for &(o, w) in &self.steps {
                     // The grid's empty border keeps every neighbour of a solid cell inside.
@@ -184,6 +235,84 @@ impl Volume {
     /// Converts a field value to mesh units.
     pub fn to_mesh(&self, units: u32) -> f32 {
         units as f32 / UNITS * self.grid.cell
+    }
+}
+
+/// Each solid cell's `k` smallest field values over the fields that joined it.
+///
+/// A field that reaches a cell farther than k others would stay farther than those k past
+/// that cell too (each of them is at most that much nearer there, and paths go on the same
+/// way), so it cannot be among the k nearest anywhere it would go from there: the
+/// k-nearest-site variant of Dijkstra. For skinning this leaves each bone's walk to the
+/// region where it is among the k nearest, instead of the whole volume, and changes none
+/// of the k nearest.
+pub struct Nearest {
+    k: usize,
+    /// Per grid cell, the k-th smallest value ([`UNREACHED`] until k fields reached it).
+    /// Laid out like a field, so the walk reads it where it reads the field.
+    kth: Vec<u32>,
+    /// Grid cell → index among the solid cells, for `best`.
+    rank: Vec<u32>,
+    /// `k` values per solid cell, in no order.
+    best: Vec<u32>,
+    /// Fields joined so far.
+    joined: usize,
+}
+
+impl Nearest {
+    pub fn new(volume: &Volume, k: usize) -> Nearest {
+        let k = k.max(1);
+        let mut rank = vec![u32::MAX; volume.solid.len()];
+        for (r, &c) in volume.cells.iter().enumerate() {
+            rank[c as usize] = r as u32;
+        }
+        Nearest {
+            k,
+            kth: vec![UNREACHED; volume.solid.len()],
+            rank,
+            best: vec![UNREACHED; volume.cells.len() * k],
+            joined: 0,
+        }
+    }
+
+    /// One of the first k fields joins: its values fill a slot of every cell.
+    fn fill(&mut self, volume: &Volume, dist: &[u32]) {
+        let (k, j) = (self.k, self.joined);
+        for (r, &c) in volume.cells.iter().enumerate() {
+            self.best[r * k + j] = dist[c as usize];
+        }
+        self.joined += 1;
+        if self.joined == k {
+            for (r, &c) in volume.cells.iter().enumerate() {
+                self.kth[c as usize] = self.best[r * k..(r + 1) * k]
+                    .iter()
+                    .copied()
+                    .max()
+                    .unwrap_or(UNREACHED);
+            }
+        }
+    }
+
+    /// Adds a settled value (once k fields have joined). The k values are kept unsorted: replacing the largest and
+    /// finding the new largest is a few compares, where keeping them sorted cost a
+    /// memmove per settled cell (as much as the rest of the walk).
+    fn insert(&mut self, cell: usize, d: u32) {
+        if d >= self.kth[cell] {
+            return;
+        }
+        let at = self.rank[cell] as usize * self.k;
+        let list = &mut self.best[at..at + self.k];
+        let (mut top, mut second) = (0, 0);
+        for (i, &x) in list.iter().enumerate() {
+            if x > list[top] {
+                top = i;
+            }
+        }
+        list[top] = d;
+        for &x in list.iter() {
+            second = second.max(x);
+        }
+        self.kth[cell] = second;
     }
 }
 
@@ -217,6 +346,8 @@ impl Stamp {
 pub struct Ring {
     buckets: Vec<Vec<u32>>,
     pending: usize,
+    /// Cells the last field set, so the next one resets only those.
+    touched: Vec<u32>,
 }
 
 impl Ring {
@@ -224,11 +355,13 @@ impl Ring {
         self.buckets.resize_with(RING, Vec::new);
         self.buckets.iter_mut().for_each(Vec::clear);
         self.pending = 0;
+        self.touched.clear();
     }
 
     fn push(&mut self, d: u32, c: u32) {
         self.buckets[d as usize % RING].push(c);
         self.pending += 1;
+        self.touched.push(c);
     }
 
     fn pop(&mut self, d: u32) -> Option<u32> {
@@ -314,7 +447,7 @@ mod tests {
         let v = slab([12, 12, 12]);
         let seed = v.grid.index([2, 2, 2]) as u32;
         let (mut dist, mut ring) = (Vec::new(), Ring::default());
-        v.field(&[(seed, 0)], &mut dist, &mut ring);
+        v.field(&[(seed, 0)], &mut dist, &mut ring, None);
         assert_eq!(dist[v.grid.index([5, 2, 2])], 30);
         assert_eq!(dist[v.grid.index([5, 5, 2])], 42);
         assert_eq!(dist[v.grid.index([5, 5, 5])], 51);
@@ -338,8 +471,71 @@ mod tests {
             &[(v.grid.index([3, 11, 2]) as u32, 0)],
             &mut dist,
             &mut ring,
+            None,
         );
         let across = v.to_mesh(dist[v.grid.index([10, 11, 2])]);
         assert!(across > 14.0, "went around the wall: {across}");
+    }
+
+    #[test]
+    fn pruned_fields_keep_each_cells_k_nearest() {
+        // A slab with a wall, so some paths bend, and 12 small seed sets spread over it.
+        let mut v = slab([20, 16, 9]);
+        for y in 2..12 {
+            for z in 2..7 {
+                let i = v.grid.index([9, y, z]);
+                v.solid[i] = false;
+            }
+        }
+        let v = Volume::new(v.grid.clone(), v.solid);
+        let mut rng = 0x2545_f491_u64;
+        let mut next = |n: usize| {
+            rng = rng
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (rng >> 33) as usize % n
+        };
+        let sets: Vec<Vec<(u32, u32)>> = (0..12)
+            .map(|_| {
+                (0..1 + next(3))
+                    .map(|_| (v.cells[next(v.cells.len())], next(8) as u32))
+                    .collect()
+            })
+            .collect();
+        let k = 3;
+        let (mut dist, mut ring) = (Vec::new(), Ring::default());
+        let mut full: Vec<Vec<u32>> = vec![Vec::new(); v.solid.len()];
+        let mut pruned: Vec<Vec<u32>> = vec![Vec::new(); v.solid.len()];
+        let mut nearest = Nearest::new(&v, k);
+        let mut skipped = 0;
+        for seeds in &sets {
+            v.field(seeds, &mut dist, &mut ring, None);
+            for &c in &v.cells {
+                full[c as usize].push(dist[c as usize]);
+            }
+            v.field(seeds, &mut dist, &mut ring, Some((&mut nearest, true)));
+            for &c in &v.cells {
+                pruned[c as usize].push(dist[c as usize]);
+                skipped += usize::from(dist[c as usize] == UNREACHED);
+            }
+        }
+        assert!(
+            skipped > v.cells.len(),
+            "pruning left out only {skipped} cells"
+        );
+        for &c in &v.cells {
+            let (f, p) = (&full[c as usize], &pruned[c as usize]);
+            let mut fs = f.clone();
+            fs.sort_unstable();
+            let kth = fs[k - 1];
+            for (b, (&x, &y)) in f.iter().zip(p).enumerate() {
+                // Every field among the k nearest is exact; the others are never nearer.
+                if x <= kth {
+                    assert_eq!(x, y, "cell {c}, field {b}");
+                } else {
+                    assert!(y >= x && (y > kth || y == UNREACHED), "cell {c}, field {b}");
+                }
+            }
+        }
     }
 }

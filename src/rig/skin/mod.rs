@@ -30,7 +30,7 @@ use crate::mesh::Mesh;
 use crate::rig::metrics::Segment;
 use crate::rig::skeleton::SkeletonError;
 use crate::rig::{Skeleton, SkinWeights};
-use geodesic::{Ring, Stamp, Stencils, Volume};
+use geodesic::{Nearest, Ring, Stamp, Stencils, Volume};
 use glam::Vec3;
 pub use learned::from_scores;
 use serde::Serialize;
@@ -68,7 +68,10 @@ pub struct SkinConfig {
 impl Default for SkinConfig {
     fn default() -> Self {
         SkinConfig {
-            resolution: 96,
+            // 64 scores as 96 did on the dev split (learned: L1 0.4569 against 0.4549,
+            // precision 0.769 / 0.773, recall 0.829 / 0.817, deformation 0.0109 / 0.0108)
+            // at about half the time: the cells, and so the fields, are 3.4× fewer.
+            resolution: 64,
             max_influences: 4,
             falloff: 10.0,
             softness: 0.5,
@@ -366,8 +369,27 @@ pub fn candidates_timed(
     let stencils = Stencils::new(&volume, pos);
     let mut nearest: Vec<Vec<(u32, f32)>> = vec![Vec::new(); pos.len()];
     let (mut dist, mut ring) = (Vec::new(), Ring::default());
-    for (b, bone_seeds) in seeds.iter().enumerate() {
-        volume.field(bone_seeds, &mut dist, &mut ring);
+    // A bone's field need only cover where it is among the k nearest of the bones that
+    // every vertex may take: where k of those are nearer, no vertex can want it. Bones
+    // some part may not take never bound the others (that part might need the bone
+    // they outrank).
+    let everywhere: Vec<bool> = (0..segs.len())
+        .map(|b| {
+            bindings.iter().all(|p| match p {
+                Binding::Bones(ok) => ok[b],
+                Binding::Reachable | Binding::Rigid(_) => true,
+            })
+        })
+        .collect();
+    let mut pruning =
+        (everywhere.iter().filter(|&&e| e).count() >= k).then(|| Nearest::new(&volume, k));
+    // Bones every vertex may take first: only they bound the others.
+    let order = (0..segs.len())
+        .filter(|&b| everywhere[b])
+        .chain((0..segs.len()).filter(|&b| !everywhere[b]));
+    for b in order {
+        let bounds = pruning.as_mut().map(|n| (n, everywhere[b]));
+        volume.field(&seeds[b], &mut dist, &mut ring, bounds);
         for (v, cands) in nearest.iter_mut().enumerate() {
             let allowed = match parts.of_vertex[v].map(|p| &bindings[p as usize]) {
                 Some(Binding::Bones(ok)) => ok[b],
@@ -420,12 +442,14 @@ fn ms(t: Instant) -> f64 {
     t.elapsed().as_secs_f64() * 1e3
 }
 
-/// Keeps `list` as the `k` nearest, sorted nearest first.
+/// Keeps `list` as the `k` nearest, sorted nearest first; equal distances by bone index,
+/// so the result does not depend on the order bones are offered in.
 fn insert_nearest(list: &mut Vec<(u32, f32)>, item: (u32, f32), k: usize) {
-    if list.len() == k && list.last().is_some_and(|l| l.1 <= item.1) {
+    let before = |x: &(u32, f32)| x.1 < item.1 || (x.1 == item.1 && x.0 < item.0);
+    if list.len() == k && list.last().is_some_and(before) {
         return;
     }
-    let at = list.partition_point(|x| x.1 <= item.1);
+    let at = list.partition_point(before);
     list.insert(at, item);
     list.truncate(k);
 }

@@ -1,0 +1,99 @@
+//! A counting semaphore for the CPU-heavy stages of jobs (skinning and export).
+//!
+//! Workers decide how many jobs are in flight, and so how many skeleton candidates share
+//! each decode batch on the inference thread: the more, the cheaper each token. But every
+//! in-flight job also skins on a worker thread, and on a small machine a few concurrent
+//! skinnings starve the inference thread, which then decodes in small batches again. So
+//! the two are set apart: many jobs may wait on the decoder, and only `permits` of them
+//! skin at once (by default one core fewer than the machine has, leaving one for decode).
+
+use std::sync::{Condvar, Mutex};
+use std::time::Duration;
+
+pub struct CpuSlots {
+    free: Mutex<usize>,
+    freed: Condvar,
+}
+
+/// Holds a slot until dropped.
+pub struct Slot<'a>(&'a CpuSlots);
+
+impl Drop for Slot<'_> {
+    fn drop(&mut self) {
+        *self.0.free.lock().unwrap_or_else(|e| e.into_inner()) += 1;
+        self.0.freed.notify_one();
+    }
+}
+
+/// How often a waiting job looks whether it was canceled.
+const CANCEL_CHECK: Duration = Duration::from_millis(100);
+
+impl CpuSlots {
+    /// At least one permit.
+    pub fn new(permits: usize) -> CpuSlots {
+        CpuSlots {
+            free: Mutex::new(permits.max(1)),
+            freed: Condvar::new(),
+        }
+    }
+
+    /// One core fewer than the machine has, at least one.
+    pub fn default_permits() -> usize {
+        std::thread::available_parallelism().map_or(1, |n| n.get().saturating_sub(1).max(1))
+    }
+
+    /// Blocks until a slot is free; `None` when `canceled` turns true first.
+    pub fn acquire(&self, canceled: impl Fn() -> bool) -> Option<Slot<'_>> {
+        let mut free = self.free.lock().unwrap_or_else(|e| e.into_inner());
+        loop {
+            if canceled() {
+                return None;
+            }
+            if *free > 0 {
+                *free -= 1;
+                return Some(Slot(self));
+            }
+            free = self
+                .freed
+                .wait_timeout(free, CANCEL_CHECK)
+                .unwrap_or_else(|e| e.into_inner())
+                .0;
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::sync::atomic::{AtomicUsize, Ordering};
+    use std::sync::Arc;
+
+    #[test]
+    fn never_more_holders_than_permits() {
+        let slots = Arc::new(CpuSlots::new(2));
+        let (now, most) = (Arc::new(AtomicUsize::new(0)), Arc::new(AtomicUsize::new(0)));
+        let threads: Vec<_> = (0..8)
+            .map(|_| {
+                let (slots, now, most) = (slots.clone(), now.clone(), most.clone());
+                std::thread::spawn(move || {
+                    for _ in 0..20 {
+                        let _slot = slots.acquire(|| false).expect("not canceled");
+                        let n = now.fetch_add(1, Ordering::SeqCst) + 1;
+                        most.fetch_max(n, Ordering::SeqCst);
+                        std::thread::sleep(Duration::from_micros(200));
+                        now.fetch_sub(1, Ordering::SeqCst);
+                    }
+                })
+            })
+            .collect();
+        threads.into_iter().for_each(|t| t.join().unwrap());
+        assert_eq!(most.load(Ordering::SeqCst), 2);
+    }
+
+    #[test]
+    fn a_canceled_wait_gives_up() {
+        let slots = CpuSlots::new(1);
+        let _held = slots.acquire(|| false).unwrap();
+        assert!(slots.acquire(|| true).is_none());
+    }
+}
