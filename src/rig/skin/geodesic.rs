@@ -159,28 +159,25 @@ impl Volume {
         ring: &mut Ring,
         bounds: Option<(&mut Nearest, bool)>,
     ) {
-        // One loop per case, so the unbounded walk pays nothing for the bounds. Until k
-        // fields have joined there is no bound: those walk unbounded, and join in one
-        // pass over the solid cells afterwards (cheaper than inserting as they settle).
+        // Until k fields have joined there is no bound: those walk unbounded and join in
+        // one pass over the solid cells afterwards (cheaper than inserting as they settle).
         match bounds {
-            None => self.walk::<false, false>(seeds, dist, ring, None),
-            Some((n, joins)) if n.joined < n.k => {
-                self.walk::<false, false>(seeds, dist, ring, None);
-                if joins {
+            Some((n, joins)) if n.joined == n.k => self.walk(seeds, dist, ring, Some((n, joins))),
+            early => {
+                self.walk(seeds, dist, ring, None);
+                if let Some((n, true)) = early {
                     n.fill(self, dist);
                 }
             }
-            Some((n, false)) => self.walk::<true, false>(seeds, dist, ring, Some(n)),
-            Some((n, true)) => self.walk::<true, true>(seeds, dist, ring, Some(n)),
         }
     }
 
-    fn walk<const BOUNDED: bool, const JOINS: bool>(
+    fn walk(
         &self,
         seeds: &[(u32, u32)],
         dist: &mut Vec<u32>,
         ring: &mut Ring,
-        mut nearest: Option<&mut Nearest>,
+        mut bounds: Option<(&mut Nearest, bool)>,
     ) {
         if dist.len() == self.solid.len() {
             for &c in &ring.touched {
@@ -208,13 +205,13 @@ impl Volume {
                     // Settled earlier at a shorter distance.
                     continue;
                 }
-                if let Some(k) = nearest.as_deref_mut().filter(|_| BOUNDED) {
+                if let Some((k, joins)) = bounds.as_mut() {
                     // Checked where a cell settles, not at each of its 26 neighbours: a
                     // cell past the bound keeps its value but goes no further.
                     if cur > k.kth[c] {
                         continue;
                     }
-                    if JOINS {
+                    if *joins {
                         k.insert(c, cur);
                     }
                 }
@@ -293,26 +290,18 @@ impl Nearest {
         }
     }
 
-    /// Adds a settled value (once k fields have joined). The k values are kept unsorted: replacing the largest and
-    /// finding the new largest is a few compares, where keeping them sorted cost a
-    /// memmove per settled cell (as much as the rest of the walk).
+    /// Adds a settled value (once k fields have joined). The k values are kept unsorted:
+    /// replacing the largest and finding the new largest is a few compares, where keeping
+    /// them sorted cost a memmove per settled cell (as much as the rest of the walk).
     fn insert(&mut self, cell: usize, d: u32) {
         if d >= self.kth[cell] {
             return;
         }
         let at = self.rank[cell] as usize * self.k;
         let list = &mut self.best[at..at + self.k];
-        let (mut top, mut second) = (0, 0);
-        for (i, &x) in list.iter().enumerate() {
-            if x > list[top] {
-                top = i;
-            }
-        }
+        let top = (0..self.k).fold(0, |t, i| if list[i] > list[t] { i } else { t });
         list[top] = d;
-        for &x in list.iter() {
-            second = second.max(x);
-        }
-        self.kth[cell] = second;
+        self.kth[cell] = list.iter().copied().max().unwrap_or(UNREACHED);
     }
 }
 
