@@ -101,7 +101,7 @@ impl Config {
             sync_timeout: Duration::from_secs(120),
             request_timeout: Duration::from_secs(30),
             upload_timeout: Duration::from_secs(300),
-            workers: 6,
+            workers: 8,
             cpu_jobs: 0,
             max_queued: 1000,
             lease: Duration::from_secs(30),

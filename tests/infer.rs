@@ -133,7 +133,7 @@ fn fixture_metadata_is_read() {
 
 /// Greedy, unconstrained, two items of different prompt lengths (left padding), as
 /// `check_export.py` does: the cache path gives the recompute path's tokens and logits.
-/// Half-way the cache is split per row and stacked back in the other order, which must
+/// Half-way the cache's rows are copied into a new cache in the other order, which must
 /// not change anything either.
 #[test]
 fn cached_decode_equals_recompute() {
@@ -157,9 +157,10 @@ fn cached_decode_equals_recompute() {
         cached_logits.push(logits.clone());
         if s == steps / 2 {
             // Rows 1 then 0: every later row index refers to the swapped order.
-            let a = cache.select(&[0]).unwrap();
-            let b = cache.select(&[1]).unwrap();
-            cache = KvCache::concat(b, a).unwrap();
+            let i = m.info();
+            let mut other = KvCache::empty(2 * i.n_layers, i.n_heads, i.head_dim);
+            other.append_rows(&cache, &[1, 0]).unwrap();
+            cache = other;
             swapped = true;
         }
         let feed: Vec<u32> = if swapped {
@@ -459,12 +460,13 @@ fn start_up_errors_are_typed() {
     std::fs::write(&files.decoder, b"").unwrap();
     assert_eq!(load_err(&rt, &files).code(), "model_load_failed");
 
-    // Metadata naming another contract (same length, so the protobuf stays valid).
-    let patched = replace_once(&dec, b"skeleton-v1", b"skeleton-v0");
+    // Metadata naming another contract, e.g. a `skeleton-v1` file, whose decoder returns
+    // the whole cache (same length, so the protobuf stays valid).
+    let patched = replace_once(&dec, b"skeleton-v2", b"skeleton-v1");
     std::fs::write(&files.decoder, patched).unwrap();
     let e = load_err(&rt, &files);
     assert!(
-        matches!(&e, InferError::Contract { problem, .. } if problem.contains("skeleton-v0")),
+        matches!(&e, InferError::Contract { problem, .. } if problem.contains("skeleton-v1")),
         "{e}"
     );
 

@@ -78,6 +78,8 @@ pub struct DecodeMetrics {
     tokens: IntCounter,
     steps: IntCounter,
     rows: IntCounter,
+    positions: IntCounter,
+    real_positions: IntCounter,
     decode_seconds: prometheus::Counter,
     running: IntGauge,
     waiting: IntGauge,
@@ -101,6 +103,16 @@ impl DecodeMetrics {
             rows: register_int_counter_with_registry!(
                 "rigserve_decode_batch_rows_total",
                 "Sum of batch sizes over decode steps (divide by steps for the mean batch size)",
+                registry
+            )?,
+            positions: register_int_counter_with_registry!(
+                "rigserve_decode_cache_positions_total",
+                "Cache positions decode steps attended over (rows x columns, padding included)",
+                registry
+            )?,
+            real_positions: register_int_counter_with_registry!(
+                "rigserve_decode_cache_real_positions_total",
+                "Of those, positions holding a real token (the rest is padding)",
                 registry
             )?,
             decode_seconds: prometheus::register_counter_with_registry!(
@@ -135,6 +147,12 @@ impl DecodeMetrics {
             .inc_by(now.decode_steps.saturating_sub(last.decode_steps));
         self.rows
             .inc_by(now.decode_rows.saturating_sub(last.decode_rows));
+        self.positions
+            .inc_by(now.decode_positions.saturating_sub(last.decode_positions));
+        self.real_positions.inc_by(
+            now.decode_real_positions
+                .saturating_sub(last.decode_real_positions),
+        );
         let dns = now.decode_ns.saturating_sub(last.decode_ns);
         self.decode_seconds.inc_by(dns as f64 * 1e-9);
         if dns > 0 {

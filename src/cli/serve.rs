@@ -61,7 +61,7 @@ pub struct ServeArgs {
     pub upload_timeout: Duration,
     /// Jobs run at once (their skeleton candidates share decode batches); 0 runs no
     /// worker in this process (API only).
-    #[arg(long, env = "RIGSERVE_WORKERS", default_value_t = 6)]
+    #[arg(long, env = "RIGSERVE_WORKERS", default_value_t = 8)]
     pub workers: usize,
     /// Of those, jobs skinning and exporting at once (CPU-bound); 0: one core fewer than
     /// the machine has (at least 1), which leaves a core to the decoder.

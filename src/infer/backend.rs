@@ -10,8 +10,10 @@
 //! 4. samples each item's next token under its own grammar and random stream;
 //! 5. replies to finished items (`<eos>`, length) and drops their rows.
 //!
-//! The cache is copied only in 2 and 5, when membership changes. Callers get a [`Pending`]
-//! (a one-shot reply channel); dropping it cancels the request at the next step.
+//! The cache stays in place ([`KvCache`]): a step writes one new column; joining copies
+//! only the new rows, and a finished row is replaced by the last one. Callers get a
+//! [`Pending`] (a one-shot reply channel); dropping it cancels the request at the next
+//! step.
 
 use super::kv::KvCache;
 use super::model::{ModelInfo, SkeletonModel};
@@ -97,6 +99,8 @@ pub struct Metrics {
     decode_steps: AtomicU64,
     decode_rows: AtomicU64,
     decode_ns: AtomicU64,
+    decode_positions: AtomicU64,
+    decode_real_positions: AtomicU64,
     prefill_calls: AtomicU64,
     prefill_rows: AtomicU64,
     prefill_ns: AtomicU64,
@@ -123,6 +127,11 @@ pub struct MetricsSnapshot {
     /// Sum of the batch sizes of those calls.
     pub decode_rows: u64,
     pub decode_ns: u64,
+    /// Cache positions the decode steps attended over (rows × cache columns, summed over
+    /// steps), and how many of them were real (the rest is left padding and unwritten
+    /// capacity, read and masked).
+    pub decode_positions: u64,
+    pub decode_real_positions: u64,
     pub prefill_calls: u64,
     pub prefill_rows: u64,
     pub prefill_ns: u64,
@@ -150,6 +159,8 @@ impl Metrics {
             decode_steps: g(&self.decode_steps),
             decode_rows: g(&self.decode_rows),
             decode_ns: g(&self.decode_ns),
+            decode_positions: g(&self.decode_positions),
+            decode_real_positions: g(&self.decode_real_positions),
             prefill_calls: g(&self.prefill_calls),
             prefill_rows: g(&self.prefill_rows),
             prefill_ns: g(&self.prefill_ns),
@@ -186,6 +197,8 @@ impl MetricsSnapshot {
             decode_steps: d(self.decode_steps, earlier.decode_steps),
             decode_rows: d(self.decode_rows, earlier.decode_rows),
             decode_ns: d(self.decode_ns, earlier.decode_ns),
+            decode_positions: d(self.decode_positions, earlier.decode_positions),
+            decode_real_positions: d(self.decode_real_positions, earlier.decode_real_positions),
             prefill_calls: d(self.prefill_calls, earlier.prefill_calls),
             prefill_rows: d(self.prefill_rows, earlier.prefill_rows),
             prefill_ns: d(self.prefill_ns, earlier.prefill_ns),
@@ -201,6 +214,11 @@ impl MetricsSnapshot {
     /// Mean rows per decode step.
     pub fn mean_batch(&self) -> f64 {
         self.decode_rows as f64 / self.decode_steps.max(1) as f64
+    }
+
+    /// Share of the attended cache positions that were padding or unused capacity.
+    pub fn padding_fraction(&self) -> f64 {
+        1.0 - self.decode_real_positions as f64 / self.decode_positions.max(1) as f64
     }
 
     pub fn ms_per_step(&self) -> f64 {
@@ -304,7 +322,7 @@ impl Backend {
             rx,
             waiting: VecDeque::new(),
             running: Vec::new(),
-            cache: None,
+            cache: KvCache::empty(2 * info.n_layers, info.n_heads, info.head_dim),
             metrics: metrics.clone(),
         };
         let thread = std::thread::Builder::new()
@@ -509,8 +527,8 @@ struct Worker {
     rx: Receiver<Command>,
     waiting: VecDeque<Job>,
     running: Vec<Item>,
-    /// Rows in `running` order; `None` without a KV cache or when nothing runs.
-    cache: Option<KvCache>,
+    /// Rows in `running` order; empty without a KV cache or when nothing runs.
+    cache: KvCache,
     metrics: Arc<Metrics>,
 }
 
@@ -587,24 +605,29 @@ impl Worker {
         Metrics::add(&self.metrics.cancelled, gone);
     }
 
-    /// Keeps the running items (and cache rows) at `keep`, in order.
+    /// Keeps the running items (and cache rows) at `keep` (ascending). The cache may
+    /// move rows to fill the gaps; the items follow it, so row `i` is always `running[i]`.
     fn retain_rows(&mut self, keep: &[usize]) {
         let mut slots: Vec<Option<Item>> = self.running.drain(..).map(Some).collect();
-        self.running = keep
+        let order = if self.kv_cache {
+            let t = Instant::now();
+            let order = self.cache.retain(keep);
+            Metrics::add(&self.metrics.cache_rebuilds, 1);
+            Metrics::add_time(&self.metrics.cache_ns, t);
+            match order {
+                Ok(o) => o,
+                Err(e) => {
+                    self.running = slots.into_iter().flatten().collect();
+                    return self.fail_running(e);
+                }
+            }
+        } else {
+            keep.to_vec()
+        };
+        self.running = order
             .iter()
             .map(|&i| slots[i].take().expect("distinct rows"))
             .collect();
-        if let Some(cache) = self.cache.take() {
-            if !self.running.is_empty() {
-                let t = Instant::now();
-                match cache.select(keep) {
-                    Ok(c) => self.cache = Some(c),
-                    Err(e) => self.fail_running(e),
-                }
-                Metrics::add(&self.metrics.cache_rebuilds, 1);
-                Metrics::add_time(&self.metrics.cache_ns, t);
-            }
-        }
     }
 
     fn fail_running(&mut self, e: InferError) {
@@ -612,7 +635,7 @@ impl Worker {
         for item in self.running.drain(..) {
             let _ = item.reply.send(Err(e.clone()));
         }
-        self.cache = None;
+        self.cache.retain(&[]).expect("empty keep list is valid");
     }
 
     /// Encoder output per job, each distinct point set encoded once; sets of one size go
@@ -733,21 +756,11 @@ impl Worker {
             let t = Instant::now();
             // The prefill's rows for the items still going (one row may serve several).
             let rows: Vec<usize> = keep.iter().map(|&i| of_row[i]).collect();
-            let joined =
-                if rows.len() == cache.batch() && rows.iter().enumerate().all(|(i, &r)| i == r) {
-                    Ok(cache)
-                } else {
-                    cache.select(&rows)
-                }
-                .and_then(|new| match self.cache.take() {
-                    Some(old) => KvCache::concat(old, new),
-                    None => Ok(new),
-                });
+            let joined = self.cache.append_rows(&cache, &rows);
             Metrics::add(&self.metrics.cache_rebuilds, 1);
             Metrics::add_time(&self.metrics.cache_ns, t);
-            match joined {
-                Ok(c) => self.cache = Some(c),
-                Err(e) => self.fail_running(e),
+            if let Err(e) = joined {
+                self.fail_running(e);
             }
         }
         let size = self.running.len() as u64;
@@ -789,10 +802,15 @@ impl Worker {
         let t = Instant::now();
         let res = if self.kv_cache {
             let tokens: Vec<u32> = self.running.iter().map(Item::last).collect();
-            match self.cache.as_mut() {
-                Some(cache) => self.model.decode_step(&tokens, cache),
-                None => Err(InferError::run("decode", "running batch without a cache")),
-            }
+            Metrics::add(
+                &self.metrics.decode_positions,
+                (self.cache.batch() * self.cache.capacity()) as u64,
+            );
+            Metrics::add(
+                &self.metrics.decode_real_positions,
+                self.cache.real_positions() as u64,
+            );
+            self.model.decode_step(&tokens, &mut self.cache)
         } else {
             let info = self.model.info();
             let mut stacked = Array3::<f32>::zeros((b, info.n_latents, info.d_model));

@@ -19,7 +19,7 @@ pub enum InferError {
     ModelNotFound(PathBuf),
     #[error("model file {path} could not be loaded: {message}")]
     ModelLoad { path: PathBuf, message: String },
-    #[error("model {path} breaks its rigserve contract (skeleton-v1 or skin-v1): {problem}")]
+    #[error("model {path} breaks its rigserve contract (skeleton-v2 or skin-v1): {problem}")]
     Contract { path: PathBuf, problem: String },
     #[error("invalid request: {0}")]
     InvalidRequest(String),

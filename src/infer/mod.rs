@@ -1,4 +1,4 @@
-//! Skeleton model inference on ONNX Runtime: the `skeleton-v1` contract of
+//! Skeleton model inference on ONNX Runtime: the `skeleton-v2` contract of
 //! `training/skeleton/ONNX_CONTRACT.md`, seen from the serving side.
 //!
 //! - [`Runtime`] loads the ONNX Runtime library once per process;

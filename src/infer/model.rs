@@ -1,19 +1,22 @@
-//! The encoder and decoder sessions of a `skeleton-v1` model
+//! The encoder and decoder sessions of a `skeleton-v2` model
 //! (`training/skeleton/ONNX_CONTRACT.md`): loading, contract validation, and the three
 //! calls a decoder loop needs (encode, prefill, one cached step).
 
 use super::kv::KvCache;
 use super::{InferError, Runtime};
 use crate::rig::tokenizer::{ALT, PAD};
-use ndarray::{s, Array2, Array3, Array4, ArrayView2, Axis, Ix3};
+use ndarray::{Array2, Array3, Array4, ArrayView2, ArrayView4, Axis, Ix3, Ix4};
 use ort::session::builder::GraphOptimizationLevel;
 use ort::session::{Session, SessionInputValue};
-use ort::value::{DynValue, Outlet, Tensor, TensorElementType, TensorRef, ValueType};
+use ort::value::{Outlet, Tensor, TensorElementType, TensorRef, ValueType};
 use std::borrow::Cow;
 use std::path::{Path, PathBuf};
 
-/// The only contract this crate speaks.
-pub const CONTRACT: &str = "skeleton-v1";
+/// The only contract this crate speaks. v2's decoder returns only the new positions'
+/// keys and values, so the cache stays in place ([`KvCache`]); a `skeleton-v1` file is
+/// refused with a contract error naming both (re-export it from its weights:
+/// `training/skeleton/init_from_onnx.py`).
+pub const CONTRACT: &str = "skeleton-v2";
 
 /// Which exported weights to load: `encoder{suffix}.onnx` / `decoder{suffix}.onnx`.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -106,7 +109,7 @@ pub struct ModelInfo {
     pub exporter: Option<String>,
 }
 
-/// A loaded `skeleton-v1` model. `run` needs `&mut`, so one thread owns it (see
+/// A loaded `skeleton-v2` model. `run` needs `&mut`, so one thread owns it (see
 /// [`super::Backend`]).
 pub struct SkeletonModel {
     encoder: Session,
@@ -114,7 +117,7 @@ pub struct SkeletonModel {
     info: ModelInfo,
     files: ModelFiles,
     past_names: Vec<String>,
-    present_names: Vec<String>,
+    new_names: Vec<String>,
 }
 
 impl std::fmt::Debug for SkeletonModel {
@@ -350,8 +353,13 @@ impl SkeletonModel {
                 ]
             })
             .collect();
-        let present_names: Vec<String> = (0..info.n_layers)
-            .flat_map(|i| [format!("present.{i}.key"), format!("present.{i}.value")])
+        let new_names: Vec<String> = (0..info.n_layers)
+            .flat_map(|i| {
+                [
+                    format!("new_key_values.{i}.key"),
+                    format!("new_key_values.{i}.value"),
+                ]
+            })
             .collect();
         let kv_dims = [Dynamic, Is(info.n_heads), Dynamic, Is(info.head_dim)];
         let prefix_dims = [Dynamic, Dynamic, Is(info.d_model)];
@@ -389,7 +397,7 @@ impl SkeletonModel {
             ty: Float32,
             dims: &logits_dims,
         }];
-        outs.extend(present_names.iter().map(|n| Expect {
+        outs.extend(new_names.iter().map(|n| Expect {
             name: n,
             ty: Float32,
             dims: &kv_dims,
@@ -401,7 +409,7 @@ impl SkeletonModel {
             info,
             files: files.clone(),
             past_names,
-            present_names,
+            new_names,
         })
     }
 
@@ -487,11 +495,15 @@ impl SkeletonModel {
         let empty_past = Array4::<f32>::zeros((b, info.n_heads, 0, info.head_dim));
         let prefix_in = TensorRef::from_array_view(prefixes.view())
             .map_err(|e| InferError::run("prefill input", e))?;
-        let (logits, present) =
-            self.run_decoder(ids, prefix_in.into(), pos, mask.view(), |_| {
-                Ok(TensorRef::from_array_view(empty_past.view())?.into())
-            })?;
-        Ok((logits, KvCache::new(present, mask, next_pos)?))
+        let (logits, cache) = self.run_decoder(
+            ids,
+            prefix_in.into(),
+            pos,
+            mask.view(),
+            |_| Ok(TensorRef::from_array_view(empty_past.view())?.into()),
+            |new| KvCache::from_new(new, mask.clone(), next_pos),
+        )?;
+        Ok((logits, cache))
     }
 
     /// One cached step: appends `tokens` (one per cache row) and returns the next-token
@@ -521,16 +533,25 @@ impl SkeletonModel {
         let ids = Array2::from_shape_vec((b, 1), tokens.iter().map(|&t| t as i64).collect())
             .expect("b×1");
         let pos = Array2::from_shape_vec((b, 1), cache.next_positions().to_vec()).expect("b×1");
-        let mut mask = Array2::<i64>::ones((b, cache.len() + 1));
-        mask.slice_mut(s![.., ..cache.len()]).assign(&cache.mask());
+        // The whole buffer is the past, unwritten columns masked: the decoder reads the
+        // cache where it lies, and only the new column is copied back (`KvCache::push`).
+        let mask = cache.step_mask();
         let empty_prefix = Array3::<f32>::zeros((b, 0, self.info.d_model));
         let prefix_in = TensorRef::from_array_view(empty_prefix.view())
             .map_err(|e| InferError::run("decode input", e))?;
-        let past = cache.tensors();
-        let (logits, present) = self.run_decoder(ids, prefix_in.into(), pos, mask.view(), |i| {
-            Ok((&past[i]).into())
-        })?;
-        cache.advance(present, mask)?;
+        let (logits, new) = {
+            let past = &*cache;
+            self.run_decoder(
+                ids,
+                prefix_in.into(),
+                pos,
+                mask.view(),
+                |i| Ok(TensorRef::from_array_view(past.tensor(i))?.into()),
+                |new| Ok(new.iter().map(|a| a.to_owned()).collect::<Vec<_>>()),
+            )?
+        };
+        let views: Vec<ArrayView4<f32>> = new.iter().map(|a| a.view()).collect();
+        cache.push(&views)?;
         Ok(logits)
     }
 
@@ -544,16 +565,19 @@ impl SkeletonModel {
         self.prefill(prefixes, seqs).map(|(logits, _)| logits)
     }
 
-    fn run_decoder<'v>(
+    /// Runs the decoder and hands the new keys and values (one (B, H, P + T, dh) view per
+    /// cache tensor, checked) to `take` while the outputs are alive.
+    fn run_decoder<'v, R>(
         &mut self,
         ids: Array2<i64>,
         prefix: SessionInputValue<'v>,
         pos: Array2<i64>,
         mask: ArrayView2<'v, i64>,
         past: impl Fn(usize) -> ort::Result<SessionInputValue<'v>>,
-    ) -> Result<(Array2<f32>, Vec<DynValue>), InferError> {
+        take: impl FnOnce(&[ArrayView4<f32>]) -> Result<R, InferError>,
+    ) -> Result<(Array2<f32>, R), InferError> {
         let (b, t) = ids.dim();
-        let total = mask.dim().1;
+        let new_len = pos.dim().1;
         let input = |e: ort::Error| InferError::run("decoder input", e);
         let mut inputs: Vec<(Cow<str>, SessionInputValue)> =
             Vec::with_capacity(4 + self.past_names.len());
@@ -573,7 +597,7 @@ impl SkeletonModel {
         for (i, name) in self.past_names.iter().enumerate() {
             inputs.push((Cow::Borrowed(name.as_str()), past(i).map_err(input)?));
         }
-        let mut out = self
+        let out = self
             .decoder
             .run(inputs)
             .map_err(|e| InferError::run("decoder", e))?;
@@ -590,25 +614,25 @@ impl SkeletonModel {
         }
         let last = logits.index_axis(Axis(1), t - 1).to_owned();
         let last = last.into_dimensionality().expect("rank 2");
-        let mut present = Vec::with_capacity(self.present_names.len());
-        for name in &self.present_names {
+        let want = [b, self.info.n_heads, new_len, self.info.head_dim];
+        let mut new = Vec::with_capacity(self.new_names.len());
+        for name in &self.new_names {
             let value = out
-                .remove(name.as_str())
+                .get(name.as_str())
                 .ok_or_else(|| InferError::run("decoder output", format!("{name} missing")))?;
-            let shape: Vec<usize> = match value.dtype() {
-                ValueType::Tensor { shape, .. } => shape.iter().map(|&d| d as usize).collect(),
-                _ => Vec::new(),
-            };
-            let want = [b, self.info.n_heads, total, self.info.head_dim];
-            if shape != want {
+            let a = value
+                .try_extract_array::<f32>()
+                .map_err(|e| InferError::run("decoder output", e))?;
+            if a.shape() != want {
                 return Err(InferError::OutputShape {
                     name: name.clone(),
-                    got: shape,
+                    got: a.shape().to_vec(),
                     expected: format!("{want:?}"),
                 });
             }
-            present.push(value);
+            new.push(a.into_dimensionality::<Ix4>().expect("shape checked"));
         }
-        Ok((last, present))
+        let r = take(&new)?;
+        Ok((last, r))
     }
 }

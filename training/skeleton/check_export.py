@@ -60,6 +60,7 @@ class OnnxSkeleton:
         return [z] * (2 * self.n_layers)
 
     def run_decoder(self, input_ids, prefix, position_ids, attention_mask, past):
+        """(logits, new keys/values of this call's positions), layer 0 key first."""
         feeds = {"input_ids": input_ids.astype(np.int64), "prefix": prefix.astype(np.float32),
                  "position_ids": position_ids.astype(np.int64), "attention_mask": attention_mask.astype(np.int64)}
         for i in range(self.n_layers):
@@ -67,6 +68,12 @@ class OnnxSkeleton:
             feeds[f"past_key_values.{i}.value"] = past[2 * i + 1]
         out = self.dec.run(None, feeds)
         return out[0], out[1:]
+
+
+def append_past(past, new):
+    """`skeleton-v2` returns only the new positions' keys and values: the client keeps
+    the cache and appends them (along the sequence axis) for the next call."""
+    return [np.concatenate([p, n], axis=2) for p, n in zip(past, new)]
 
 
 def left_pad(prompts: Sequence[Sequence[int]], n_latents: int):
@@ -91,7 +98,9 @@ def greedy_cached(m: OnnxSkeleton, prefix: np.ndarray, prompts, steps: int):
     and the logits that chose them (B, steps, V)."""
     b = prefix.shape[0]
     ids, pos, mask = left_pad(prompts, prefix.shape[1])
-    logits, past = m.run_decoder(ids, prefix, pos, mask, m.empty_past(b))
+    past = m.empty_past(b)
+    logits, new = m.run_decoder(ids, prefix, pos, mask, past)
+    past = append_past(past, new)
     next_pos = np.array([prefix.shape[1] + len(p) for p in prompts], dtype=np.int64)
     toks, lgs = [], []
     empty_prefix = np.zeros((b, 0, prefix.shape[2]), dtype=np.float32)
@@ -103,7 +112,8 @@ def greedy_cached(m: OnnxSkeleton, prefix: np.ndarray, prompts, steps: int):
         if s == steps - 1:
             break
         mask = np.concatenate([mask, np.ones((b, 1), dtype=np.int64)], axis=1)
-        logits, past = m.run_decoder(nxt[:, None], empty_prefix, next_pos[:, None], mask, past)
+        logits, new = m.run_decoder(nxt[:, None], empty_prefix, next_pos[:, None], mask, past)
+        past = append_past(past, new)
         next_pos = next_pos + 1
     return np.stack(toks, 1), np.stack(lgs, 1)
 

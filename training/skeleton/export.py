@@ -23,6 +23,9 @@ from . import model as M
 from .model import ModelConfig, SkeletonModel
 
 OPSET = 18
+# v2: the decoder returns only the new positions' keys and values (v1 returned the whole
+# concatenated cache, a copy of it every step).
+CONTRACT = "skeleton-v2"
 
 
 class EncoderExport(nn.Module):
@@ -36,7 +39,7 @@ class EncoderExport(nn.Module):
 
 class DecoderExport(nn.Module):
     """Flat-signature wrapper: (input_ids, prefix, position_ids, attention_mask, past...) ->
-    (logits, present...), past/present ordered layer 0 key, layer 0 value, layer 1 key, ..."""
+    (logits, new...), past/new ordered layer 0 key, layer 0 value, layer 1 key, ..."""
 
     def __init__(self, model: SkeletonModel):
         super().__init__()
@@ -57,7 +60,7 @@ def decoder_io_names(n_layers: int):
     outputs = ["logits"]
     for i in range(n_layers):
         inputs += [f"past_key_values.{i}.key", f"past_key_values.{i}.value"]
-        outputs += [f"present.{i}.key", f"present.{i}.value"]
+        outputs += [f"new_key_values.{i}.key", f"new_key_values.{i}.value"]
     return inputs, outputs
 
 
@@ -73,7 +76,7 @@ def example_decoder_inputs(cfg: ModelConfig, b=2, t=3, p=5, past=4):
 def _metadata(cfg: ModelConfig, part: str) -> dict:
     return {
         "rigserve.part": part,
-        "rigserve.contract": "skeleton-v1",
+        "rigserve.contract": CONTRACT,
         "rigserve.config": json.dumps(cfg.to_dict()),
         "d_model": str(cfg.d_model),
         "n_latents": str(cfg.n_latents),
@@ -185,7 +188,7 @@ def export_decoder(model: SkeletonModel, path: str, method: str = "auto") -> str
         for n in in_names[4:]:
             axes[n] = {0: "batch", 2: "past_len"}
         for n in out_names[1:]:
-            axes[n] = {0: "batch", 2: "total_len"}
+            axes[n] = {0: "batch", 2: "prefix_len_plus_seq"}
         torch.onnx.export(wrapper, args, path, dynamo=False, opset_version=17, input_names=in_names,
                           output_names=out_names, dynamic_axes=axes)
         used = "torchscript"
@@ -195,7 +198,7 @@ def export_decoder(model: SkeletonModel, path: str, method: str = "auto") -> str
     for n in in_names[4:]:
         dims[n] = ["batch", None, "past_len", None]
     for n in out_names[1:]:
-        dims[n] = ["batch", None, "total_len", None]
+        dims[n] = ["batch", None, "prefix_len_plus_seq", None]
     _rename_dims(path, dims)
     _set_metadata(path, {**_metadata(cfg, "decoder"), "rigserve.exporter": used})
     return used
@@ -238,7 +241,7 @@ def export_all(model: SkeletonModel, out_dir: str, method: str = "auto", variant
             if v == "int8":
                 _set_metadata(dst, {**_metadata(model.cfg, "encoder" if src == enc else "decoder"), "rigserve.variant": "int8"})
     with open(os.path.join(out_dir, "model_config.json"), "w") as f:
-        json.dump({"contract": "skeleton-v1", "config": model.cfg.to_dict(), "head_dim": model.cfg.head_dim,
+        json.dump({"contract": CONTRACT, "config": model.cfg.to_dict(), "head_dim": model.cfg.head_dim,
                    "max_positions": model.cfg.max_positions, "tokens": {
                        "bos": M.BOS, "eos": M.EOS, "pad": M.PAD, "branch": M.BRANCH, "spring": M.SPRING,
                        "mixamo_body": M.MIXAMO_BODY, "mixamo_hand": M.MIXAMO_HAND, "cls_base": M.CLS_BASE,

@@ -1,5 +1,10 @@
 """Recover PyTorch weights from an exported skeleton model (encoder.onnx + decoder.onnx).
 
+    python -m training.skeleton.init_from_onnx --onnx models/skeleton --out models/skeleton
+
+re-exports those weights under the current contract (`export.CONTRACT`) and runs the
+export checks on them (ONNX vs PyTorch, cached vs recomputed decoding).
+
 Only the exported ONNX is committed (never checkpoints), so continuing training from a
 shipped model starts here. The dynamo exporter keeps most parameter names but folds each
 `nn.Linear` weight into a transposed constant (`val_N`) feeding a MatMul; that weight is
@@ -73,3 +78,48 @@ def load_onnx_weights(model, onnx_dir):
 def config_of(onnx_dir):
     with open(os.path.join(onnx_dir, "model_config.json")) as f:
         return json.load(f)["config"]
+
+
+def main(argv=None):
+    import argparse
+    import tempfile
+
+    import numpy as np
+
+    from . import model as M
+    from .check_export import OnnxSkeleton, check, greedy_recompute, sample_inputs
+    from .export import export_all
+
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--onnx", required=True, help="folder with encoder.onnx, decoder.onnx, model_config.json")
+    ap.add_argument("--out", required=True, help="where to write the re-exported files (may be --onnx)")
+    ap.add_argument("--variants", default="", help="comma-separated: fp16, int8")
+    a = ap.parse_args(argv)
+    torch.set_num_threads(2)
+    model = M.SkeletonModel(M.ModelConfig.from_dict(config_of(a.onnx))).eval()
+    load_onnx_weights(model, a.onnx)
+    # Export beside, check, then move into place: a failed check leaves --out untouched.
+    tmp = tempfile.mkdtemp(prefix="reexport_")
+    export_all(model, tmp, variants=[v for v in a.variants.split(",") if v])
+    res = check(model, tmp, steps=24, n_points=2048)
+    # The files read must give what the files written give (any contract: a decoder's
+    # first output is always the logits, and a recompute needs no cache).
+    old = OnnxSkeleton(os.path.join(a.onnx, "encoder.onnx"), os.path.join(a.onnx, "decoder.onnx"))
+    new = OnnxSkeleton(os.path.join(tmp, "encoder.onnx"), os.path.join(tmp, "decoder.onnx"))
+    pts, prompts = sample_inputs(model.cfg, None, 2048)
+    _, l_old = greedy_recompute(old, old.encode(pts), prompts, 12)
+    _, l_new = greedy_recompute(new, new.encode(pts), prompts, 12)
+    res["old_vs_new_max_logit_diff"] = float(np.abs(l_old - l_new).max())
+    res["ok"] = res["ok"] and res["old_vs_new_max_logit_diff"] <= 1e-3
+    print(json.dumps({k: v for k, v in res.items() if not isinstance(v, dict)}, indent=1))
+    if not res["ok"]:
+        raise SystemExit("export check failed; nothing written")
+    os.makedirs(a.out, exist_ok=True)
+    names = sorted(os.listdir(tmp))
+    for fn in names:
+        os.replace(os.path.join(tmp, fn), os.path.join(a.out, fn))
+    print(f"[init_from_onnx] wrote {names} to {a.out}")
+
+
+if __name__ == "__main__":
+    main()

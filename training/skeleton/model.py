@@ -220,18 +220,42 @@ class DecoderLayer(nn.Module):
         self.ff = FeedForward(d, cfg.d_ff, cfg.dropout)
 
     def forward(self, x, bias=None, past: Optional[Tuple[torch.Tensor, torch.Tensor]] = None):
-        """``bias`` None means plain causal attention (training, no cache, no padding).
-        Returns (x, (key, value)) where key/value include the past."""
+        """Training: ``bias`` None, ``past`` None, plain causal attention; returns (x, None).
+
+        Cached (``skeleton-v2``): ``bias`` is (bias_past, bias_new), additive masks of shape
+        (B, 1, S, past) and (B, 1, S, S); returns (x, (key, value)) of the S new positions
+        only. The past is read where it lies and never concatenated with the new keys: a
+        concat would copy the whole cache every step (the cost ``skeleton-v1`` paid), and
+        the caller appends the new rows into a buffer it keeps in place."""
         a = self.attn
         h = self.ln1(x)
         q, k, v = a.split(a.q(h)), a.split(a.k(h)), a.split(a.v(h))
-        if past is not None:
-            k = torch.cat([past[0], k], dim=2)
-            v = torch.cat([past[1], v], dim=2)
-        o = _attend(q, k, v, bias, causal=bias is None)
+        if past is None:
+            o = _attend(q, k, v, None, causal=True)
+        else:
+            o = _attend_split(q, past, (k, v), bias)
         x = x + a.drop(a.o(a.merge(o)))
         x = x + self.ff(self.ln2(x))
-        return x, (k, v)
+        return x, (None if past is None else (k, v))
+
+
+def _attend_split(q, past, new, bias):
+    """Attention over [past ; new] without materialising the concatenation of keys and
+    values: scores against each part, one softmax over both, then the two weighted sums.
+    Only the score rows (B, H, S, past + S) are concatenated, which is small."""
+    (pk, pv), (nk, nv), (bp, bn) = past, new, bias
+    scale = 1.0 / math.sqrt(q.shape[-1])
+    sp = torch.matmul(q, pk.transpose(-1, -2)) * scale + bp
+    sn = torch.matmul(q, nk.transpose(-1, -2)) * scale + bn
+    att = torch.softmax(torch.cat([sp, sn], dim=-1), dim=-1)
+    n_past = pk.shape[2]
+    return torch.matmul(att[..., :n_past], pv) + torch.matmul(att[..., n_past:], nv)
+
+
+def append_past(past, new):
+    """The next call's past: each layer's new keys and values appended to its old ones
+    (what a reference client does; the Rust server writes into a preallocated buffer)."""
+    return [(torch.cat([pk, nk], 2), torch.cat([pv, nv], 2)) for (pk, pv), (nk, nv) in zip(past, new)]
 
 
 class SkeletonDecoder(nn.Module):
@@ -270,25 +294,30 @@ class SkeletonDecoder(nn.Module):
         attention_mask: torch.Tensor,  # (B, past+P+T) int64, 1 real / 0 padding
         past: List[Tuple[torch.Tensor, torch.Tensor]],  # per layer (B, H, past, dh)
     ):
+        """Logits (B, T, V) of the token positions and, per layer, the keys and values of
+        the P + T new positions only (``skeleton-v2``; see ONNX_CONTRACT.md)."""
         p = prefix.shape[1]
         past_len = past[0][0].shape[2]
         x = torch.cat([prefix, self.tok(input_ids)], dim=1)  # (B, S, d), S = P+T
         s = x.shape[1]
         x = x + self.pos(position_ids)
-        # additive mask (B, 1, S, past+S): causal over absolute index, padding from the mask
-        q_idx = torch.arange(s, device=x.device).unsqueeze(1) + past_len
-        k_idx = torch.arange(past_len + s, device=x.device).unsqueeze(0)
-        causal = k_idx <= q_idx  # (S, past+S)
-        keep = causal.unsqueeze(0) & (attention_mask != 0).unsqueeze(1)  # (B, S, past+S)
-        bias = torch.where(
-            keep, torch.zeros((), dtype=x.dtype, device=x.device), torch.full((), NEG_INF, dtype=x.dtype, device=x.device)
-        ).unsqueeze(1)
-        presents = []
+        # Additive masks. Past slots precede every new position, so only the mask decides
+        # what of the past is seen (unwritten capacity and left padding are 0); new
+        # positions are causal among themselves and masked by their own mask columns.
+        zero = torch.zeros((), dtype=x.dtype, device=x.device)
+        neg = torch.full((), NEG_INF, dtype=x.dtype, device=x.device)
+        real = attention_mask != 0  # (B, past+S)
+        bias_past = torch.where(real[:, :past_len], zero, neg)[:, None, None, :]  # (B,1,1,past)
+        q_idx = torch.arange(s, device=x.device).unsqueeze(1)
+        causal = torch.arange(s, device=x.device).unsqueeze(0) <= q_idx  # (S, S)
+        keep_new = causal.unsqueeze(0) & real[:, past_len:].unsqueeze(1)  # (B, S, S)
+        bias_new = torch.where(keep_new, zero, neg).unsqueeze(1)
+        new_kv = []
         for layer, kv in zip(self.layers, past):
-            x, kv_new = layer(x, bias, kv)
-            presents.append(kv_new)
+            x, kv_new = layer(x, (bias_past, bias_new), kv)
+            new_kv.append(kv_new)
         x = self.ln_f(x[:, p:])
-        return self.head(x), presents
+        return self.head(x), new_kv
 
 
 class SkeletonModel(nn.Module):

@@ -182,7 +182,8 @@ def decode(model: M.SkeletonModel, points: torch.Tensor, prompts: List[List[int]
     past = [(torch.zeros(b, cfg.n_heads, 0, cfg.head_dim), torch.zeros(b, cfg.n_heads, 0, cfg.head_dim)) for _ in model.decoder.layers]
     pos = torch.arange(L + t0).repeat(b, 1)
     mask = torch.ones(b, L + t0, dtype=torch.int64)
-    logits, past = model.decoder.forward_cached(ids, prefix, pos, mask, past)
+    logits, new = model.decoder.forward_cached(ids, prefix, pos, mask, past)
+    past = M.append_past(past, new)
     n = t0
     while n < cfg.max_tokens and not all(g.done for g in gs):
         last = logits[:, -1].float()
@@ -199,8 +200,9 @@ def decode(model: M.SkeletonModel, points: torch.Tensor, prompts: List[List[int]
             seqs[j].append(t)
             nxt.append(t)
         mask = torch.cat([mask, torch.ones(b, 1, dtype=torch.int64)], 1)
-        logits, past = model.decoder.forward_cached(torch.tensor(nxt)[:, None], prefix[:, :0], torch.full((b, 1), L + n),
-                                                    mask, past)
+        logits, new = model.decoder.forward_cached(torch.tensor(nxt)[:, None], prefix[:, :0], torch.full((b, 1), L + n),
+                                                   mask, past)
+        past = M.append_past(past, new)
         n += 1
     return [s[: s.index(M.EOS) + 1] if M.EOS in s else s for s in seqs]
 

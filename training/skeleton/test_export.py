@@ -43,11 +43,13 @@ def test_cached_path_matches_training_path():
         past = [(torch.zeros(2, 4, 0, 16), torch.zeros(2, 4, 0, 16)) for _ in model.decoder.layers]
         pos = torch.arange(L + 3).repeat(2, 1)
         mask = torch.ones(2, L + 3, dtype=torch.int64)
-        lg, past = model.decoder.forward_cached(ids[:, :3], prefix, pos, mask, past)
+        lg, new = model.decoder.forward_cached(ids[:, :3], prefix, pos, mask, past)
+        past = M.append_past(past, new)
         outs = [lg]
         for t in range(3, 6):
             mask = torch.ones(2, L + t + 1, dtype=torch.int64)
-            lg, past = model.decoder.forward_cached(ids[:, t:t + 1], prefix[:, :0], torch.full((2, 1), L + t), mask, past)
+            lg, new = model.decoder.forward_cached(ids[:, t:t + 1], prefix[:, :0], torch.full((2, 1), L + t), mask, past)
+            past = M.append_past(past, new)
             outs.append(lg)
     assert torch.allclose(torch.cat(outs, 1), ref, atol=1e-5)
 
@@ -72,7 +74,8 @@ def test_export_contract_io():
     assert names[:4] == ["input_ids", "prefix", "position_ids", "attention_mask"]
     assert names[4:] == [f"past_key_values.{i}.{kv}" for i in range(cfg.dec_layers) for kv in ("key", "value")]
     outs = [o.name for o in m.dec.get_outputs()]
-    assert outs == ["logits"] + [f"present.{i}.{kv}" for i in range(cfg.dec_layers) for kv in ("key", "value")]
+    assert outs == ["logits"] + [f"new_key_values.{i}.{kv}" for i in range(cfg.dec_layers) for kv in ("key", "value")]
+    assert meta_contract(m) == "skeleton-v2"
     meta = m.dec.get_modelmeta().custom_metadata_map
     assert int(meta["n_latents"]) == cfg.n_latents and int(meta["vocab_size"]) == M.VOCAB_SIZE
     # shapes: batch 3, 50 points; prefill with 2 tokens then a decode step
@@ -80,14 +83,38 @@ def test_export_contract_io():
     prefix = m.encode(pts)
     assert prefix.shape == (3, cfg.n_latents, cfg.d_model)
     ids, pos, mask = left_pad([[M.BOS, M.CLS_NONE]] * 3, cfg.n_latents)
-    logits, present = m.run_decoder(ids, prefix, pos, mask, m.empty_past(3))
+    logits, new = m.run_decoder(ids, prefix, pos, mask, m.empty_past(3))
     assert logits.shape == (3, 2, M.VOCAB_SIZE)
-    assert present[0].shape == (3, cfg.n_heads, cfg.n_latents + 2, cfg.head_dim)
+    assert new[0].shape == (3, cfg.n_heads, cfg.n_latents + 2, cfg.head_dim)
     mask = np.concatenate([mask, np.ones((3, 1), np.int64)], 1)
-    logits, present = m.run_decoder(np.full((3, 1), 7), prefix[:, :0], np.full((3, 1), cfg.n_latents + 2), mask, present)
+    logits, new = m.run_decoder(np.full((3, 1), 7), prefix[:, :0], np.full((3, 1), cfg.n_latents + 2), mask, new)
     assert logits.shape == (3, 1, M.VOCAB_SIZE)
-    assert present[-1].shape == (3, cfg.n_heads, cfg.n_latents + 3, cfg.head_dim)
+    assert new[-1].shape == (3, cfg.n_heads, 1, cfg.head_dim)  # only the new position
     assert np.isfinite(logits).all()
+
+
+def meta_contract(m):
+    return m.dec.get_modelmeta().custom_metadata_map["rigserve.contract"]
+
+
+def test_unwritten_capacity_is_invisible():
+    """A past longer than what was written, its extra slots masked 0 and filled with
+    garbage, gives the same logits: the server passes a preallocated buffer that way."""
+    model, d = _exported()
+    m = OnnxSkeleton(os.path.join(d, "encoder.onnx"), os.path.join(d, "decoder.onnx"))
+    cfg = model.cfg
+    pts = np.random.default_rng(4).normal(size=(2, 64, 6)).astype(np.float32)
+    prefix = m.encode(pts)
+    ids, pos, mask = left_pad([[M.BOS, M.CLS_NONE], [M.BOS, M.CLS_BASE + 1]], cfg.n_latents)
+    _, new = m.run_decoder(ids, prefix, pos, mask, m.empty_past(2))
+    step = (np.full((2, 1), 9), prefix[:, :0], np.full((2, 1), cfg.n_latents + 2))
+    ref, _ = m.run_decoder(*step, np.concatenate([mask, np.ones((2, 1), np.int64)], 1), new)
+    extra = 5
+    junk = [np.concatenate([n, np.random.default_rng(i).normal(size=n.shape[:2] + (extra, n.shape[3])).astype(np.float32) * 50], 2)
+            for i, n in enumerate(new)]
+    big_mask = np.concatenate([mask, np.zeros((2, extra), np.int64), np.ones((2, 1), np.int64)], 1)
+    got, _ = m.run_decoder(*step, big_mask, junk)
+    assert np.abs(got - ref).max() < 1e-5
 
 
 def test_export_matches_torch_and_cache():
