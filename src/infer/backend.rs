@@ -216,11 +216,6 @@ impl MetricsSnapshot {
         self.decode_rows as f64 / self.decode_steps.max(1) as f64
     }
 
-    /// Share of the attended cache positions that were padding or unused capacity.
-    pub fn padding_fraction(&self) -> f64 {
-        1.0 - self.decode_real_positions as f64 / self.decode_positions.max(1) as f64
-    }
-
     pub fn ms_per_step(&self) -> f64 {
         self.decode_ns as f64 / 1e6 / self.decode_steps.max(1) as f64
     }
