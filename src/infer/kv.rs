@@ -40,6 +40,9 @@ pub struct KvCache {
     mask: Vec<i64>,
     /// Per row, the position id of the next token.
     next_pos: Vec<i64>,
+    /// Per row, its real written positions (the ones of its mask row), kept as rows
+    /// change so the per-step metrics need not scan the mask.
+    real: Vec<usize>,
 }
 
 impl std::fmt::Debug for KvCache {
@@ -74,6 +77,7 @@ impl KvCache {
             len: 0,
             mask: Vec::new(),
             next_pos: Vec::new(),
+            real: Vec::new(),
         }
     }
 
@@ -110,6 +114,11 @@ impl KvCache {
             rows: b,
             cols: s,
             len: s,
+            real: mask
+                .rows()
+                .into_iter()
+                .map(|r| r.iter().filter(|&&m| m != 0).count())
+                .collect(),
             mask: mask.iter().copied().collect(),
             next_pos,
         })
@@ -142,10 +151,7 @@ impl KvCache {
     /// Written, real positions over all rows (what attention needs; the rest of
     /// `batch × capacity` is padding).
     pub fn real_positions(&self) -> usize {
-        self.mask[..self.rows * self.cols]
-            .iter()
-            .filter(|&&m| m != 0)
-            .count()
+        self.real.iter().sum()
     }
 
     pub fn next_positions(&self) -> &[i64] {
@@ -249,6 +255,7 @@ impl KvCache {
                 .copy_from_slice(&src.mask[s * src.cols..s * src.cols + src.len]);
             self.mask[row + self.len..row + self.cols].fill(0);
             self.next_pos.push(src.next_pos[s]);
+            self.real.push(src.real[s]);
         }
         self.rows = need_rows;
         Ok(())
@@ -282,6 +289,7 @@ impl KvCache {
         for r in 0..self.rows {
             self.mask[r * cols + len] = 1;
             self.next_pos[r] += 1;
+            self.real[r] += 1;
         }
         self.len += 1;
         Ok(())
@@ -309,10 +317,12 @@ impl KvCache {
             let c = self.cols;
             self.mask.copy_within(from * c..(from + 1) * c, hole * c);
             self.next_pos[hole] = self.next_pos[from];
+            self.real[hole] = self.real[from];
             order[hole] = from;
         }
         self.rows = n;
         self.next_pos.truncate(n);
+        self.real.truncate(n);
         if n == 0 {
             *self = KvCache::empty(self.bufs.len(), self.heads, self.head_dim);
         } else {
@@ -411,6 +421,8 @@ mod tests {
             }
             let step = Array4::from_elem((c.batch(), 2, 1, 3), 1.0f32);
             c.push(&[step.view(), step.view()]).unwrap();
+            let ones = c.mask().iter().filter(|&&m| m != 0).count();
+            assert_eq!(c.real_positions(), ones);
         }
         assert!(c.row_cap <= 8, "row capacity {}", c.row_cap);
         assert!(c.capacity() <= 3 * GROW, "column capacity {}", c.capacity());
