@@ -37,6 +37,8 @@ pub struct ModelSetup {
     pub threads: usize,
     /// Most sequences in one decode batch (all jobs' candidates together).
     pub max_batch: usize,
+    /// Use the ragged decode step when the model has one ([`BackendConfig::ragged`]).
+    pub ragged: bool,
 }
 
 /// What this process does: everything, only the HTTP API, or only the workers (with a
@@ -178,6 +180,7 @@ fn load_models(m: &ModelSetup) -> Result<(Backend, Option<SkinModel>), InferErro
         BackendConfig {
             max_batch: m.max_batch,
             kv_cache: true,
+            ragged: m.ragged,
         },
     )?;
     Ok((backend, skin))

@@ -49,11 +49,18 @@ fn load(rt: &Runtime, dir: &Path) -> SkeletonModel {
 }
 
 fn backend(rt: &Runtime, kv_cache: bool) -> Backend {
+    backend_with(rt, kv_cache, true)
+}
+
+/// `ragged: false` decodes with `decoder.onnx` over the shared-length cache even though
+/// the fixture has `decoder_step.onnx`.
+fn backend_with(rt: &Runtime, kv_cache: bool, ragged: bool) -> Backend {
     Backend::new(
         load(rt, &fixture()),
         BackendConfig {
             max_batch: 32,
             kv_cache,
+            ragged,
         },
     )
     .unwrap()
@@ -193,6 +200,53 @@ fn cached_decode_equals_recompute() {
     assert!(max_diff <= 1e-4, "max logit difference {max_diff}");
 }
 
+/// The ragged decode step (`decoder_step.onnx`) gives the recompute path's tokens and
+/// logits for rows of different lengths; half-way the first row leaves, so the second
+/// moves into its slot and the step runs with a dead slot behind it.
+#[test]
+fn ragged_decode_equals_recompute() {
+    let Some(rt) = runtime() else { return };
+    let mut m = load(&rt, &fixture());
+    assert!(m.has_step(), "the fixture has decoder_step.onnx");
+    let (pa, pb) = (random_points(3, 2048), random_points(4, 2048));
+    let prefix = m.encode(&to_array(&[&pa, &pb])).unwrap();
+    let prompts: Vec<Vec<u32>> = vec![vec![BOS, CLS_NONE], vec![BOS, CLS_BASE + 1, 120, 130, 140]];
+    let refs: Vec<&[u32]> = prompts.iter().map(|p| p.as_slice()).collect();
+    let (steps, leave) = (40, 20);
+    let (mut logits, dense) = m.prefill(&prefix, &refs).unwrap();
+    let mut cache = m.empty_ragged();
+    cache.append_rows(&dense, &[0, 1]).unwrap();
+    let mut live = vec![0usize, 1];
+    let mut seqs = prompts.clone();
+    let mut max_diff = 0f32;
+    for s in 0..steps {
+        let full = {
+            let refs: Vec<&[u32]> = seqs.iter().map(|p| p.as_slice()).collect();
+            m.forward_full(&prefix, &refs).unwrap()
+        };
+        let mut next = Vec::new();
+        for (row, &r) in live.iter().enumerate() {
+            let t = argmax(logits.row(row));
+            assert_eq!(t, argmax(full.row(r)), "row {r} step {s}");
+            for (x, y) in full.row(r).iter().zip(logits.row(row)) {
+                max_diff = max_diff.max((x - y).abs());
+            }
+            seqs[r].push(t);
+            next.push(t);
+        }
+        if s == leave {
+            let order = cache.retain(&[1]).unwrap();
+            assert_eq!(order, vec![1]);
+            live = vec![1];
+            next = vec![next[1]];
+            assert!(cache.slots() > cache.batch(), "one dead slot stays");
+        }
+        logits = m.decode_step_ragged(&next, &mut cache).unwrap();
+    }
+    assert_eq!(cache.lens(), &[16 + 5 + steps]);
+    assert!(max_diff <= 1e-4, "max logit difference {max_diff}");
+}
+
 /// A long valid prefix to use as a prompt: the start of a sequence the model generated.
 fn generated_prefix(b: &Backend, points: &Arc<[[f32; 6]]>, len: usize, seed: u64) -> Vec<u32> {
     let g = b
@@ -207,7 +261,8 @@ fn generated_prefix(b: &Backend, points: &Arc<[[f32; 6]]>, len: usize, seed: u64
 
 /// Jobs of different prompt lengths and budgets, submitted at different times so they join
 /// a running batch at different steps and leave it at different steps, give exactly the
-/// tokens each gives alone, with and without the KV cache.
+/// tokens each gives alone: with the ragged decode step, with the shared-length cache, and
+/// recomputing without a cache.
 #[test]
 fn batched_equals_alone() {
     let Some(rt) = runtime() else { return };
@@ -236,13 +291,14 @@ fn batched_equals_alone() {
         assert_eq!(g.finish, FinishReason::Eos);
     }
 
-    for (name, b) in [("kv", &kv), ("recompute", &backend(&rt, false))] {
+    let dense = backend_with(&rt, true, false);
+    for (name, b) in [("kv", &kv), ("dense", &dense), ("recompute", &backend(&rt, false))] {
         let before = b.metrics();
         let mut pending = Vec::new();
         for (k, r) in reqs.iter().enumerate() {
             pending.push(b.submit(r.clone()).unwrap());
             std::thread::sleep(std::time::Duration::from_millis(
-                if name == "kv" { 2 } else { 6 } * (k as u64 % 3),
+                if name == "recompute" { 6 } else { 2 } * (k as u64 % 3),
             ));
         }
         let got: Vec<Generation> = pending.into_iter().map(|p| p.wait().unwrap()).collect();
@@ -426,7 +482,7 @@ fn model_with_the_old_vocabulary_still_decodes() {
 }
 
 fn copy_fixture(dir: &Path) -> ModelFiles {
-    for f in ["encoder.onnx", "decoder.onnx"] {
+    for f in ["encoder.onnx", "decoder.onnx", "decoder_step.onnx"] {
         std::fs::copy(fixture().join(f), dir.join(f)).unwrap();
     }
     ModelFiles::in_dir(dir, Variant::Fp32)
@@ -486,8 +542,30 @@ fn start_up_errors_are_typed() {
 
     // Files from two different models.
     std::fs::write(&files.decoder, &dec).unwrap();
+    let enc = std::fs::read(&files.encoder).unwrap();
     std::fs::copy(fixture().join("vocab272/encoder.onnx"), &files.encoder).unwrap();
     assert_eq!(load_err(&rt, &files).code(), "model_contract_mismatch");
+    std::fs::write(&files.encoder, &enc).unwrap();
+
+    // The ragged step is optional, but a broken or foreign one is refused, not skipped.
+    let step = std::fs::read(&files.step).unwrap();
+    std::fs::write(&files.step, &step[..step.len() / 3]).unwrap();
+    assert_eq!(load_err(&rt, &files).code(), "model_load_failed");
+    std::fs::copy(fixture().join("vocab272/decoder_step.onnx"), &files.step).unwrap();
+    let e = load_err(&rt, &files);
+    assert!(
+        matches!(&e, InferError::Contract { problem, .. } if problem.contains("do not match")),
+        "{e}"
+    );
+    std::fs::copy(&files.decoder, &files.step).unwrap();
+    let e = load_err(&rt, &files);
+    assert!(
+        matches!(&e, InferError::Contract { problem, .. } if problem.contains("part")),
+        "{e}"
+    );
+    std::fs::remove_file(&files.step).unwrap();
+    let m = SkeletonModel::load(&rt, &files, &SessionConfig::default()).unwrap();
+    assert!(!m.has_step(), "without the file decode steps use decoder.onnx");
 
     // Another library path than the loaded one is refused rather than ignored.
     let other = tmp.path().join("libonnxruntime.so");

@@ -288,6 +288,7 @@ fn decode(a: DecodeArgs) -> anyhow::Result<()> {
         let backend = a.model.backend(BackendConfig {
             max_batch,
             kv_cache: kv,
+            ragged: true,
         })?;
         anyhow::ensure!(
             a.tokens + 2 <= backend.info().max_tokens,
@@ -390,6 +391,7 @@ fn skeleton(a: SkeletonArgs) -> anyhow::Result<()> {
     let backend = a.model.backend(BackendConfig {
         max_batch: a.samples.max(1),
         kv_cache: true,
+        ragged: true,
     })?;
     let cfg = PredictConfig {
         samples: a.samples,

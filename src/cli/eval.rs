@@ -57,6 +57,7 @@ pub fn run(a: EvalArgs) -> anyhow::Result<()> {
         let backend = a.model.backend(BackendConfig {
             max_batch: a.decode.samples.max(1),
             kv_cache: true,
+            ragged: true,
         })?;
         let cfg = a.decode.predict_config(None);
         rigserve::eval::eval_model_skeleton(

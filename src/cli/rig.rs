@@ -31,6 +31,10 @@ pub struct ModelArgs {
     /// ONNX Runtime intra-op threads per session.
     #[arg(long, default_value_t = 1)]
     pub threads: usize,
+    /// Decode with `decoder.onnx` over a cache of one shared length even when the model
+    /// has the ragged `decoder_step.onnx` (the slower layout; for comparison).
+    #[arg(long, env = "RIGSERVE_DENSE_DECODE")]
+    pub dense_decode: bool,
 }
 
 impl ModelArgs {
@@ -48,7 +52,8 @@ impl ModelArgs {
         .map_err(|e| anyhow::anyhow!("{e} [{}]", e.code()))
     }
 
-    pub fn backend(&self, config: BackendConfig) -> anyhow::Result<Backend> {
+    pub fn backend(&self, mut config: BackendConfig) -> anyhow::Result<Backend> {
+        config.ragged &= !self.dense_decode;
         let model = self.load()?;
         Backend::new(model, config).map_err(|e| anyhow::anyhow!("{e} [{}]", e.code()))
     }
@@ -217,6 +222,7 @@ fn predict(a: &RigArgs, mesh: &mesh::Mesh) -> anyhow::Result<Skeleton> {
     let backend = a.model.backend(BackendConfig {
         max_batch: a.decode.samples.max(1),
         kv_cache: true,
+        ragged: true,
     })?;
     let cfg = a.decode.predict_config(a.category.clone());
     let pred = predict_skeleton(&backend, mesh, &cfg, keep.as_ref())

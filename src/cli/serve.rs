@@ -134,6 +134,7 @@ pub fn run(a: ServeArgs) -> anyhow::Result<()> {
         ort_lib: a.model.ort_lib.clone(),
         threads: a.model.threads,
         max_batch: a.max_batch,
+        ragged: !a.model.dense_decode,
     });
     cfg.limits = a.limits.limits();
     cfg.sync_max_bytes = a.sync_max_bytes;

@@ -4,18 +4,23 @@
 //! Each loop iteration
 //! 1. takes every request that has arrived (blocking only when there is nothing to do);
 //! 2. admits waiting requests up to `max_batch`: encodes their points (each distinct point
-//!    set once), prefills them as a batch of their own, samples their first token, and
-//!    appends their cache rows to the running batch (left-padded to a common length);
+//!    set once) and prefills them as a batch of their own ([`super::prefill`]), samples
+//!    their first token, and appends their cache rows to the running batch;
 //! 3. runs one decode step for the whole running batch;
 //! 4. samples each item's next token under its own grammar and random stream;
 //! 5. replies to finished items (`<eos>`, length) and drops their rows.
 //!
-//! The cache stays in place ([`KvCache`]): a step writes one new column; joining copies
-//! only the new rows, and a finished row is replaced by the last one. Callers get a
+//! The cache stays in place ([`DecodeCache`]): with the model's ragged step
+//! (`decoder_step.onnx`, [`super::RaggedKv`]) each row keeps its own length and the step
+//! reads only that; without it ([`KvCache`]) rows share one length and the ones that joined
+//! later are left-padded to it. A step writes one new column; joining copies only the new
+//! rows, and a finished row is replaced by the last one. Callers get a
 //! [`Pending`] (a one-shot reply channel); dropping it cancels the request at the next
 //! step.
 
+use super::cache::DecodeCache;
 use super::kv::KvCache;
+use super::prefill::{self, Prepared, Ready};
 use super::model::{ModelInfo, SkeletonModel};
 use super::sampling::{completion_cost, constrain_logits, Sampler, SamplingParams};
 use super::InferError;
@@ -77,6 +82,9 @@ pub struct BackendConfig {
     /// `false` recomputes every sequence in full at each step (the baseline the cache is
     /// benchmarked and tested against).
     pub kv_cache: bool,
+    /// Decode with the model's ragged step (`decoder_step.onnx`) when it has one: each
+    /// row attends over its own length instead of the batch's longest.
+    pub ragged: bool,
 }
 
 impl Default for BackendConfig {
@@ -84,6 +92,7 @@ impl Default for BackendConfig {
         BackendConfig {
             max_batch: 32,
             kv_cache: true,
+            ragged: true,
         }
     }
 }
@@ -93,20 +102,20 @@ impl Default for BackendConfig {
 pub struct Metrics {
     requests: AtomicU64,
     completed: AtomicU64,
-    failed: AtomicU64,
-    cancelled: AtomicU64,
+    pub(super) failed: AtomicU64,
+    pub(super) cancelled: AtomicU64,
     generated_tokens: AtomicU64,
     decode_steps: AtomicU64,
     decode_rows: AtomicU64,
     decode_ns: AtomicU64,
     decode_positions: AtomicU64,
     decode_real_positions: AtomicU64,
-    prefill_calls: AtomicU64,
-    prefill_rows: AtomicU64,
-    prefill_ns: AtomicU64,
-    encode_calls: AtomicU64,
-    encode_rows: AtomicU64,
-    encode_ns: AtomicU64,
+    pub(super) prefill_calls: AtomicU64,
+    pub(super) prefill_rows: AtomicU64,
+    pub(super) prefill_ns: AtomicU64,
+    pub(super) encode_calls: AtomicU64,
+    pub(super) encode_rows: AtomicU64,
+    pub(super) encode_ns: AtomicU64,
     cache_rebuilds: AtomicU64,
     cache_ns: AtomicU64,
     running: AtomicU64,
@@ -175,11 +184,11 @@ impl Metrics {
         }
     }
 
-    fn add(a: &AtomicU64, v: u64) {
+    pub(super) fn add(a: &AtomicU64, v: u64) {
         a.fetch_add(v, Ordering::Relaxed);
     }
 
-    fn add_time(a: &AtomicU64, since: Instant) {
+    pub(super) fn add_time(a: &AtomicU64, since: Instant) {
         a.fetch_add(since.elapsed().as_nanos() as u64, Ordering::Relaxed);
     }
 }
@@ -270,15 +279,15 @@ impl Drop for Pending {
 }
 
 /// A validated request on its way to the worker.
-struct Job {
-    points: Arc<[[f32; 6]]>,
-    prompt: Vec<u32>,
+pub(super) struct Job {
+    pub(super) points: Arc<[[f32; 6]]>,
+    pub(super) prompt: Vec<u32>,
     grammar: Grammar,
     sampler: Sampler,
     max_tokens: usize,
     ignore_eos: bool,
     reply: Sender<Result<Generation, InferError>>,
-    cancel: Arc<AtomicBool>,
+    pub(super) cancel: Arc<AtomicBool>,
 }
 
 enum Command {
@@ -311,13 +320,14 @@ impl Backend {
         let metrics = Arc::new(Metrics::default());
         let (tx, rx) = channel();
         let worker = Worker {
+            cache: DecodeCache::for_model(&model, config.ragged),
             model,
             kv_cache: config.kv_cache,
             max_batch: config.max_batch.max(1),
             rx,
             waiting: VecDeque::new(),
+            ready: VecDeque::new(),
             running: Vec::new(),
-            cache: KvCache::empty(2 * info.n_layers, info.n_heads, info.head_dim),
             metrics: metrics.clone(),
         };
         let thread = std::thread::Builder::new()
@@ -520,17 +530,24 @@ struct Worker {
     kv_cache: bool,
     max_batch: usize,
     rx: Receiver<Command>,
+    /// Submitted jobs not yet prefilled.
     waiting: VecDeque<Job>,
+    /// Prefilled jobs waiting for room in the batch.
+    ready: VecDeque<Prepared>,
     running: Vec<Item>,
     /// Rows in `running` order; empty without a KV cache or when nothing runs.
-    cache: KvCache,
+    cache: DecodeCache,
     metrics: Arc<Metrics>,
 }
 
 impl Worker {
+    fn idle(&self) -> bool {
+        self.running.is_empty() && self.waiting.is_empty() && self.ready.is_empty()
+    }
+
     fn run(mut self) {
         loop {
-            if self.running.is_empty() && self.waiting.is_empty() {
+            if self.idle() {
                 match self.rx.recv() {
                     Ok(cmd) => self.take(cmd),
                     Err(RecvError) => break,
@@ -551,22 +568,23 @@ impl Worker {
                 break;
             }
             self.drop_cancelled();
-            let room = self.max_batch.saturating_sub(self.running.len());
-            if room > 0 && !self.waiting.is_empty() {
-                let n = room.min(self.waiting.len());
-                let jobs: Vec<Job> = self.waiting.drain(..n).collect();
-                self.admit(jobs);
-            }
+            self.admit();
             if !self.running.is_empty() {
                 self.step();
             }
             self.gauges();
         }
+        let gone = || Err(InferError::BackendGone);
         for job in self.waiting.drain(..) {
-            let _ = job.reply.send(Err(InferError::BackendGone));
+            let _ = job.reply.send(gone());
+        }
+        for p in self.ready.drain(..) {
+            for r in p.ready {
+                let _ = r.job.reply.send(gone());
+            }
         }
         for item in self.running.drain(..) {
-            let _ = item.reply.send(Err(InferError::BackendGone));
+            let _ = item.reply.send(gone());
         }
     }
 
@@ -581,17 +599,55 @@ impl Worker {
         self.metrics
             .running
             .store(self.running.len() as u64, Ordering::Relaxed);
+        let ready: usize = self.ready.iter().map(|p| p.ready.len()).sum();
         self.metrics
             .waiting
-            .store(self.waiting.len() as u64, Ordering::Relaxed);
+            .store((self.waiting.len() + ready) as u64, Ordering::Relaxed);
+    }
+
+    fn room(&self) -> usize {
+        self.max_batch.saturating_sub(self.running.len())
+    }
+
+    /// Fills the batch's room: prefilled jobs first (a prefill may have had more jobs than
+    /// room), then as many waiting jobs as fit, prefilled together.
+    fn admit(&mut self) {
+        if self.ready.is_empty() && self.room() > 0 && !self.waiting.is_empty() {
+            let n = self.room().min(self.waiting.len());
+            let jobs: Vec<Job> = self.waiting.drain(..n).collect();
+            match prefill::prepare(&mut self.model, &self.metrics, jobs) {
+                Ok(p) => self.ready.push_back(p),
+                Err((jobs, e)) => fail_jobs(&self.metrics, jobs, e),
+            }
+        }
+        while self.room() > 0 {
+            let room = self.room();
+            let Some(front) = self.ready.front_mut() else {
+                break;
+            };
+            let k = room.min(front.ready.len());
+            let part: Vec<Ready> = front.ready.drain(..k).collect();
+            let src = front.cache.clone();
+            if front.ready.is_empty() {
+                self.ready.pop_front();
+            }
+            self.join(part, &src);
+        }
     }
 
     fn drop_cancelled(&mut self) {
+        let live = |c: &AtomicBool| !c.load(Ordering::Relaxed);
         let before = self.waiting.len();
-        self.waiting.retain(|j| !j.cancel.load(Ordering::Relaxed));
+        self.waiting.retain(|j| live(&j.cancel));
         let mut gone = (before - self.waiting.len()) as u64;
+        for p in &mut self.ready {
+            let before = p.ready.len();
+            p.ready.retain(|r| live(&r.job.cancel));
+            gone += (before - p.ready.len()) as u64;
+        }
+        self.ready.retain(|p| !p.ready.is_empty());
         let keep: Vec<usize> = (0..self.running.len())
-            .filter(|&i| !self.running[i].cancel.load(Ordering::Relaxed))
+            .filter(|&i| live(&self.running[i].cancel))
             .collect();
         if keep.len() < self.running.len() {
             gone += (self.running.len() - keep.len()) as u64;
@@ -633,109 +689,28 @@ impl Worker {
         self.cache.retain(&[]).expect("empty keep list is valid");
     }
 
-    /// Encoder output per job, each distinct point set encoded once; sets of one size go
-    /// through the encoder together.
-    fn encode(&mut self, jobs: &[Job]) -> Result<Vec<Arc<Array2<f32>>>, InferError> {
-        let mut sets: Vec<Arc<[[f32; 6]]>> = Vec::new();
-        let mut of_job = Vec::with_capacity(jobs.len());
-        for j in jobs {
-            let k = match sets.iter().position(|s| Arc::ptr_eq(s, &j.points)) {
-                Some(k) => k,
-                None => {
-                    sets.push(j.points.clone());
-                    sets.len() - 1
-                }
-            };
-            of_job.push(k);
-        }
-        let mut prefixes: Vec<Option<Arc<Array2<f32>>>> = vec![None; sets.len()];
-        let mut sizes: Vec<usize> = sets.iter().map(|s| s.len()).collect();
-        sizes.sort_unstable();
-        sizes.dedup();
-        for n in sizes {
-            let group: Vec<usize> = (0..sets.len()).filter(|&k| sets[k].len() == n).collect();
-            let mut pts = Array3::<f32>::zeros((group.len(), n, 6));
-            for (g, &k) in group.iter().enumerate() {
-                for (i, p) in sets[k].iter().enumerate() {
-                    for (c, &v) in p.iter().enumerate() {
-                        pts[[g, i, c]] = v;
-                    }
-                }
-            }
-            let t = Instant::now();
-            let out = self.model.encode(&pts)?;
-            Metrics::add_time(&self.metrics.encode_ns, t);
-            Metrics::add(&self.metrics.encode_calls, 1);
-            Metrics::add(&self.metrics.encode_rows, group.len() as u64);
-            for (g, &k) in group.iter().enumerate() {
-                prefixes[k] = Some(Arc::new(out.index_axis(Axis(0), g).to_owned()));
-            }
-        }
-        Ok(of_job
-            .into_iter()
-            .map(|k| prefixes[k].clone().expect("every set encoded"))
-            .collect())
-    }
-
-    fn admit(&mut self, jobs: Vec<Job>) {
-        let prefixes = match self.encode(&jobs) {
-            Ok(p) => p,
-            Err(e) => return fail_jobs(&self.metrics, jobs, e),
-        };
-        // A job's candidates share the mesh (one prefix) and the prompt, so their
-        // prefills are the same: run each distinct row once and copy it to the others.
-        // Prefill is the costliest call per row (every prefix position), so best-of-N
-        // would otherwise pay N times for one result.
-        let mut distinct: Vec<usize> = Vec::with_capacity(jobs.len());
-        let of_row: Vec<usize> = (0..jobs.len())
-            .map(|j| {
-                let same = |&u: &usize| {
-                    Arc::ptr_eq(&prefixes[u], &prefixes[j]) && jobs[u].prompt == jobs[j].prompt
-                };
-                distinct.iter().position(same).unwrap_or_else(|| {
-                    distinct.push(j);
-                    distinct.len() - 1
-                })
-            })
-            .collect();
-        let mut stacked = Array3::<f32>::zeros((
-            distinct.len(),
-            self.model.info().n_latents,
-            self.model.info().d_model,
-        ));
-        for (r, &j) in distinct.iter().enumerate() {
-            stacked.index_axis_mut(Axis(0), r).assign(&prefixes[j]);
-        }
-        let prompts: Vec<&[u32]> = distinct
-            .iter()
-            .map(|&j| jobs[j].prompt.as_slice())
-            .collect();
-        let t = Instant::now();
-        let res = self.model.prefill(&stacked, &prompts);
-        Metrics::add_time(&self.metrics.prefill_ns, t);
-        Metrics::add(&self.metrics.prefill_calls, 1);
-        Metrics::add(&self.metrics.prefill_rows, distinct.len() as u64);
-        let (logits, cache) = match res {
-            Ok((logits, cache)) if distinct.len() < jobs.len() => {
-                (logits.select(Axis(0), &of_row), cache)
-            }
-            Ok(x) => x,
-            Err(e) => return fail_jobs(&self.metrics, jobs, e),
-        };
+    /// Prefilled jobs join the batch: each samples its first token, and those still going
+    /// copy their prefill row (`src`) into the running cache.
+    fn join(&mut self, part: Vec<Ready>, src: &KvCache) {
         let kv = self.kv_cache;
-        let mut items: Vec<Item> = jobs
+        let rows: Vec<usize> = part.iter().map(|r| r.row).collect();
+        let views: Vec<_> = part.iter().map(|r| r.logits.view()).collect();
+        let logits = ndarray::stack(Axis(0), &views).expect("rows of one vocabulary");
+        let mut items: Vec<Item> = part
             .into_iter()
-            .zip(prefixes)
-            .map(|(j, prefix)| Item {
-                prompt_len: j.prompt.len(),
-                tokens: j.prompt,
-                grammar: j.grammar,
-                sampler: j.sampler,
-                max_tokens: j.max_tokens,
-                ignore_eos: j.ignore_eos,
-                reply: j.reply,
-                cancel: j.cancel,
-                prefix: (!kv).then_some(prefix),
+            .map(|r| {
+                let j = r.job;
+                Item {
+                    prompt_len: j.prompt.len(),
+                    tokens: j.prompt,
+                    grammar: j.grammar,
+                    sampler: j.sampler,
+                    max_tokens: j.max_tokens,
+                    ignore_eos: j.ignore_eos,
+                    reply: j.reply,
+                    cancel: j.cancel,
+                    prefix: (!kv).then_some(r.prefix),
+                }
             })
             .collect();
         let keep = self.sample_rows(&mut items, &logits);
@@ -749,9 +724,8 @@ impl Worker {
         );
         if kv {
             let t = Instant::now();
-            // The prefill's rows for the items still going (one row may serve several).
-            let rows: Vec<usize> = keep.iter().map(|&i| of_row[i]).collect();
-            let joined = self.cache.append_rows(&cache, &rows);
+            let rows: Vec<usize> = keep.iter().map(|&i| rows[i]).collect();
+            let joined = self.cache.append_rows(src, &rows);
             Metrics::add(&self.metrics.cache_rebuilds, 1);
             Metrics::add_time(&self.metrics.cache_ns, t);
             if let Err(e) = joined {
@@ -799,13 +773,13 @@ impl Worker {
             let tokens: Vec<u32> = self.running.iter().map(Item::last).collect();
             Metrics::add(
                 &self.metrics.decode_positions,
-                (self.cache.batch() * self.cache.capacity()) as u64,
+                self.cache.read_positions() as u64,
             );
             Metrics::add(
                 &self.metrics.decode_real_positions,
                 self.cache.real_positions() as u64,
             );
-            self.model.decode_step(&tokens, &mut self.cache)
+            self.cache.step(&mut self.model, &tokens)
         } else {
             let info = self.model.info();
             let mut stacked = Array3::<f32>::zeros((b, info.n_latents, info.d_model));

@@ -19,9 +19,12 @@
 //! ```
 
 mod backend;
+mod cache;
 mod error;
 mod kv;
 mod model;
+mod prefill;
+mod ragged;
 mod runtime;
 pub mod sampling;
 mod skin_model;
@@ -32,6 +35,7 @@ pub use backend::{
 };
 pub use error::InferError;
 pub use kv::KvCache;
+pub use ragged::RaggedKv;
 pub use model::{ModelFiles, ModelInfo, SessionConfig, SkeletonModel, Variant, CONTRACT};
 pub use runtime::{resolve_library, Runtime, ORT_LIB_DEFAULT, ORT_LIB_ENV, ORT_LIB_NAME};
 pub use sampling::{Sampler, SamplingParams};

@@ -3,6 +3,7 @@
 //! calls a decoder loop needs (encode, prefill, one cached step).
 
 use super::kv::KvCache;
+use super::ragged::RaggedKv;
 use super::{InferError, Runtime};
 use crate::rig::tokenizer::{ALT, PAD};
 use ndarray::{Array2, Array3, Array4, ArrayView2, ArrayView4, Axis, Ix3, Ix4};
@@ -49,11 +50,14 @@ impl std::str::FromStr for Variant {
     }
 }
 
-/// Paths of the two ONNX files.
+/// Paths of the ONNX files.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct ModelFiles {
     pub encoder: PathBuf,
     pub decoder: PathBuf,
+    /// The ragged decode step (ONNX_CONTRACT.md, "Decode step"); optional: without it
+    /// decode steps run `decoder` over a [`KvCache`].
+    pub step: PathBuf,
 }
 
 impl ModelFiles {
@@ -64,6 +68,7 @@ impl ModelFiles {
         let at = |d: &Path| ModelFiles {
             encoder: d.join(format!("encoder{}.onnx", variant.suffix())),
             decoder: d.join(format!("decoder{}.onnx", variant.suffix())),
+            step: d.join(format!("decoder_step{}.onnx", variant.suffix())),
         };
         let direct = at(dir);
         if direct.encoder.is_file() {
@@ -114,10 +119,13 @@ pub struct ModelInfo {
 pub struct SkeletonModel {
     encoder: Session,
     decoder: Session,
+    /// `decoder_step.onnx` when the folder has one.
+    step: Option<Session>,
     info: ModelInfo,
     files: ModelFiles,
     past_names: Vec<String>,
     new_names: Vec<String>,
+    present_names: Vec<String>,
 }
 
 impl std::fmt::Debug for SkeletonModel {
@@ -304,6 +312,50 @@ fn read_metadata(session: &Session, path: &Path, part: &str) -> Result<ModelInfo
     Ok(info)
 }
 
+/// Opens `decoder_step.onnx` and checks it against the decoder it steps for: same
+/// contract and dimensions, the ragged inputs and outputs of ONNX_CONTRACT.md.
+fn load_step(
+    rt: &Runtime,
+    files: &ModelFiles,
+    cfg: &SessionConfig,
+    info: &ModelInfo,
+    past_names: &[String],
+    present_names: &[String],
+) -> Result<Session, InferError> {
+    use Dim::*;
+    use TensorElementType::{Float32, Int32, Int64};
+    let path = &files.step;
+    let step = open_session(rt, path, cfg)?;
+    let got = read_metadata(&step, path, "decoder_step")?;
+    let same = |a: &ModelInfo| {
+        (a.d_model, a.n_latents, a.n_layers, a.n_heads, a.head_dim, a.vocab_size, a.max_positions)
+    };
+    if same(&got) != same(info) {
+        return Err(InferError::Contract {
+            path: path.clone(),
+            problem: format!(
+                "dimensions {:?} do not match the decoder's {:?}",
+                same(&got),
+                same(info)
+            ),
+        });
+    }
+    let kv_dims = [Dynamic, Is(info.n_heads), Dynamic, Is(info.head_dim)];
+    let mut ins = vec![
+        Expect { name: "input_ids", ty: Int64, dims: &[Dynamic, Is(1)] },
+        Expect { name: "position_ids", ty: Int64, dims: &[Dynamic, Is(1)] },
+        Expect { name: "seqlens_k", ty: Int32, dims: &[Dynamic] },
+        Expect { name: "total_sequence_length", ty: Int32, dims: &[] },
+    ];
+    ins.extend(past_names.iter().map(|n| Expect { name: n, ty: Float32, dims: &kv_dims }));
+    check_outlets(path, "decode step inputs", step.inputs(), &ins)?;
+    let logits_dims = [Dynamic, Is(1), Is(info.vocab_size)];
+    let mut outs = vec![Expect { name: "logits", ty: Float32, dims: &logits_dims }];
+    outs.extend(present_names.iter().map(|n| Expect { name: n, ty: Float32, dims: &kv_dims }));
+    check_outlets(path, "decode step outputs", step.outputs(), &outs)?;
+    Ok(step)
+}
+
 impl SkeletonModel {
     /// Opens both files and checks them against the contract: metadata (contract, part,
     /// consistent dimensions, the encoder agreeing with the decoder) and every input and
@@ -403,14 +455,29 @@ impl SkeletonModel {
             dims: &kv_dims,
         }));
         check_outlets(&files.decoder, "decoder outputs", decoder.outputs(), &outs)?;
+        let present_names: Vec<String> = (0..info.n_layers)
+            .flat_map(|i| [format!("present.{i}.key"), format!("present.{i}.value")])
+            .collect();
+        let step = if files.step.is_file() {
+            Some(load_step(rt, files, cfg, &info, &past_names, &present_names)?)
+        } else {
+            None
+        };
         Ok(SkeletonModel {
             encoder,
             decoder,
+            step,
             info,
             files: files.clone(),
             past_names,
             new_names,
+            present_names,
         })
+    }
+
+    /// Whether decode steps can run ragged ([`SkeletonModel::decode_step_ragged`]).
+    pub fn has_step(&self) -> bool {
+        self.step.is_some()
     }
 
     pub fn info(&self) -> &ModelInfo {
@@ -553,6 +620,105 @@ impl SkeletonModel {
         let views: Vec<ArrayView4<f32>> = new.iter().map(|a| a.view()).collect();
         cache.push(&views)?;
         Ok(logits)
+    }
+
+    /// One ragged step (`decoder_step.onnx`): appends `tokens` (one per live row) and
+    /// returns the next-token logits of the live rows (B, V). The op writes the new keys and
+    /// values into the cache's own tensors, bound as both past and present. On error the
+    /// cache's lengths are unchanged (a column past every row's length may have been
+    /// written, which no row reads).
+    pub fn decode_step_ragged(
+        &mut self,
+        tokens: &[u32],
+        cache: &mut RaggedKv,
+    ) -> Result<Array2<f32>, InferError> {
+        let b = cache.batch();
+        if tokens.len() != b || b == 0 {
+            return Err(InferError::InvalidRequest(format!(
+                "decode step with {} tokens for a cache of {b} rows",
+                tokens.len()
+            )));
+        }
+        if cache
+            .next_positions()
+            .iter()
+            .any(|&p| p as usize >= self.info.max_positions)
+        {
+            return Err(InferError::InvalidRequest(format!(
+                "a sequence would pass the model's {} positions",
+                self.info.max_positions
+            )));
+        }
+        let Some(step) = self.step.as_mut() else {
+            return Err(InferError::InvalidRequest(
+                "this model has no decoder_step.onnx".into(),
+            ));
+        };
+        cache.reserve_step()?;
+        let slots = cache.slots();
+        // Dead slots run as one-position rows whose logits are dropped.
+        let mut ids = vec![0i64; slots];
+        let mut pos = vec![0i64; slots];
+        let mut seqlens = vec![0i32; slots];
+        for r in 0..b {
+            ids[r] = tokens[r] as i64;
+            pos[r] = cache.next_positions()[r];
+            seqlens[r] = cache.lens()[r] as i32;
+        }
+        let total = seqlens.iter().copied().max().unwrap_or(0) + 1;
+        let input = |e: ort::Error| InferError::run("decode step input", e);
+        let run = |e: ort::Error| InferError::run("decode step", e);
+        let mut binding = step.create_binding().map_err(run)?;
+        binding
+            .bind_input("input_ids", &Tensor::from_array(([slots, 1], ids)).map_err(input)?)
+            .map_err(input)?;
+        binding
+            .bind_input("position_ids", &Tensor::from_array(([slots, 1], pos)).map_err(input)?)
+            .map_err(input)?;
+        binding
+            .bind_input("seqlens_k", &Tensor::from_array(([slots], seqlens)).map_err(input)?)
+            .map_err(input)?;
+        let shape: [usize; 0] = [];
+        binding
+            .bind_input(
+                "total_sequence_length",
+                &Tensor::from_array((shape, vec![total])).map_err(input)?,
+            )
+            .map_err(input)?;
+        for (i, t) in cache.tensors_mut().iter_mut().enumerate() {
+            binding
+                .bind_input(self.past_names[i].as_str(), &*t)
+                .map_err(input)?;
+            binding
+                .bind_output(self.present_names[i].as_str(), &mut *t)
+                .map_err(input)?;
+        }
+        binding
+            .bind_output_to_device("logits", &ort::memory::MemoryInfo::default())
+            .map_err(input)?;
+        let v = self.info.vocab_size;
+        let logits = {
+            let out = step.run_binding(&binding).map_err(run)?;
+            let l = out["logits"]
+                .try_extract_array::<f32>()
+                .map_err(|e| InferError::run("decode step output", e))?;
+            if l.shape() != [slots, 1, v] {
+                return Err(InferError::OutputShape {
+                    name: "logits".into(),
+                    got: l.shape().to_vec(),
+                    expected: format!("[{slots}, 1, {v}]"),
+                });
+            }
+            l.slice(ndarray::s![..b, 0, ..]).to_owned()
+        };
+        drop(binding);
+        cache.advance();
+        Ok(logits)
+    }
+
+    /// An empty ragged cache shaped for this model.
+    pub fn empty_ragged(&self) -> RaggedKv {
+        RaggedKv::empty(2 * self.info.n_layers, self.info.n_heads, self.info.head_dim)
     }
 
     /// Next-token logits for whole sequences without a cache (the reference the cached

@@ -27,6 +27,7 @@ pub fn model_setup() -> ModelSetup {
         ort_lib: Some(repo().join(".onnxruntime/libonnxruntime.so.1.31.1")),
         threads: 1,
         max_batch: 16,
+        ragged: true,
     }
 }
 

@@ -92,6 +92,31 @@ def test_tiny_training_runs_and_resumes():
     assert all(np.isfinite(float(r["loss"])) for r in rows)
 
 
+def test_ema_snapshots_average_the_weights():
+    torch.manual_seed(0)
+    root = tempfile.mkdtemp(prefix="skel_ema_")
+    d = write_fake_dataset(os.path.join(root, "ds"))
+    ck = os.path.join(root, "ck")
+    args = ["--data", d, "--ckpt-dir", ck, "--config", "tiny", "--batch", "4", "--points-min", "16",
+            "--points-max", "32", "--warmup", "2", "--log-every", "2", "--ckpt-every", "2", "--precision", "fp32",
+            "--lr", "1e-2"]
+    train_main(args + ["--steps", "4", "--ema", "0.5", "--snapshot-every", "2"])
+    assert sorted(f for f in os.listdir(ck) if f.startswith("weights_")) == ["weights_000002.pt", "weights_000004.pt"]
+    last = torch.load(os.path.join(ck, "last.pt"), weights_only=False)
+    snap = torch.load(os.path.join(ck, "weights_000004.pt"), weights_only=False)
+    assert snap["step"] == 4 and snap["ema"] == 0.5
+    # The snapshot holds the average, which lags the raw weights but is not the start.
+    assert all(torch.equal(snap["model"][k], last["ema"][k]) for k in last["ema"])
+    differs = [k for k, v in last["model"].items() if v.is_floating_point() and not torch.equal(v, last["ema"][k])]
+    assert differs, "the average equals the raw weights"
+    # Resuming keeps the average.
+    train_main(args + ["--steps", "5", "--ema", "0.5", "--resume"])
+    again = torch.load(os.path.join(ck, "last.pt"), weights_only=False)
+    k = differs[0]
+    expect = 0.5 * last["ema"][k] + 0.5 * again["model"][k]
+    assert torch.allclose(again["ema"][k], expect, atol=1e-6)
+
+
 if __name__ == "__main__":
     from training.testing import run_tests
 

@@ -10,6 +10,7 @@ states). Logs to stdout (line-buffered) and `<ckpt-dir>/log.csv`.
 from __future__ import annotations
 
 import argparse
+import copy
 import csv
 import math
 import os
@@ -52,6 +53,12 @@ def parse_args(argv=None):
     ap.add_argument("--log-every", type=int, default=10)
     ap.add_argument("--ckpt-every", type=int, default=250)
     ap.add_argument("--val-every", type=int, default=500)
+    ap.add_argument("--ema", type=float, default=0.0,
+                    help="keep an exponential moving average of the weights with this decay (0 = off); "
+                         "snapshots and --val then use the average")
+    ap.add_argument("--snapshot-every", type=int, default=0,
+                    help="also write weights-only snapshots <ckpt-dir>/weights_<step>.pt this often (0 = off), "
+                         "so a later, geometric evaluation can compare steps")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--config", choices=["full", "tiny"], default="full")
     ap.add_argument("--d-model", type=int)
@@ -162,6 +169,7 @@ def main(argv=None):
 
     model = SkeletonModel(cfg)
     opt = make_optimizer(model, a)
+    ema = None
     step = 0
     best_val = float("inf")
     if resume is not None:
@@ -175,6 +183,13 @@ def main(argv=None):
     elif a.init_onnx:
         load_onnx_weights(model, a.init_onnx)
         print(f"[train] weights from {a.init_onnx}")
+    if a.ema > 0:
+        # The average starts at the starting weights and is kept in fp32 outside autocast.
+        ema = copy.deepcopy(model).eval()
+        for p_ in ema.parameters():
+            p_.requires_grad_(False)
+        if resume is not None and "ema" in resume:
+            ema.load_state_dict(resume["ema"])
     n = model.num_params()
     print(f"[train] config {cfg.to_dict()}")
     print(f"[train] params encoder {n['encoder']:,} decoder {n['decoder']:,} total {n['total']:,}")
@@ -191,7 +206,13 @@ def main(argv=None):
             "config": cfg.to_dict(), "model": model.state_dict(), "optimizer": opt.state_dict(), "step": step,
             "best_val": best_val, "sampler_rng": sampler.state(), "torch_rng": torch.get_rng_state(),
             "py_rng": random.getstate(), "args": vars(a),
+            **({"ema": ema.state_dict()} if ema is not None else {}),
         }, path)
+
+    def snapshot():
+        path = os.path.join(a.ckpt_dir, f"weights_{step:06d}.pt")
+        save_atomic({"config": cfg.to_dict(), "model": (ema or model).state_dict(), "step": step,
+                     "ema": a.ema}, path)
 
     model.train()
     t0 = time.time()
@@ -213,6 +234,12 @@ def main(argv=None):
         loss.backward()
         gn = torch.nn.utils.clip_grad_norm_(model.parameters(), a.clip)
         opt.step()
+        if ema is not None:
+            with torch.no_grad():
+                for e_, p_ in zip(ema.parameters(), model.parameters()):
+                    e_.lerp_(p_.detach(), 1.0 - a.ema)
+                for e_, b_ in zip(ema.buffers(), model.buffers()):
+                    e_.copy_(b_)
         step += 1
         win_steps += 1
         win_tokens += int((ids != PAD).sum())
@@ -227,8 +254,8 @@ def main(argv=None):
 
         val_loss = val_nocls = ""
         if val is not None and (step % a.val_every == 0 or step == a.steps):
-            val_loss = evaluate(model, val, a)
-            val_nocls = evaluate(model, val, a, cls_none=True)
+            val_loss = evaluate(ema or model, val, a)
+            val_nocls = evaluate(ema or model, val, a, cls_none=True)
             print(f"[val] step {step} val_loss {val_loss:.4f} val_loss_nocls {val_nocls:.4f}")
             if val_loss < best_val:
                 best_val = val_loss
@@ -244,6 +271,8 @@ def main(argv=None):
             win_t, win_steps, win_tokens, win_loss, win_cnt = time.time(), 0, 0, 0.0, 0
         if step % a.ckpt_every == 0 or step == a.steps:
             checkpoint(last_path)
+        if a.snapshot_every and (step % a.snapshot_every == 0 or step == a.steps):
+            snapshot()
     log_f.close()
     print(f"[train] done at step {step}; checkpoint {last_path}")
 

@@ -1,0 +1,321 @@
+//! The cache of the ragged decode step (`decoder_step.onnx`, ONNX_CONTRACT.md "Decode
+//! step"): every row keeps its own length, so a step reads each row's real positions only
+//! and never the padding a shared length puts in front of the rows that joined later.
+//!
+//! Each of the `2 × n_layers` tensors is one ONNX Runtime tensor of shape (slots, H, cols,
+//! dh), bound as both the past input and the present output of the step, so the
+//! attention op writes each row's new key and value into column `len[row]` in place and
+//! nothing is copied per step. Row `r`'s positions are columns `0..len[r]` (right
+//! padding). Slots `rows..slots` are dead: a row that left and was not yet compacted
+//! away. They still run (one position each, their logits dropped) until the slack is worth
+//! a relayout, which is cheaper than resizing the tensors every time a row finishes.
+
+use super::kv::{KvCache, GROW};
+use super::InferError;
+use ort::memory::Allocator;
+use ort::value::Tensor;
+
+fn bad(m: impl std::fmt::Display) -> InferError {
+    InferError::run("ragged kv cache", m)
+}
+
+fn round_up(n: usize) -> usize {
+    n.div_ceil(GROW).max(1) * GROW
+}
+
+pub struct RaggedKv {
+    heads: usize,
+    head_dim: usize,
+    n_tensors: usize,
+    /// Empty while there are no slots.
+    tensors: Vec<Tensor<f32>>,
+    slots: usize,
+    cols: usize,
+    /// Per live row: written positions, and the position id of its next token.
+    len: Vec<usize>,
+    next_pos: Vec<i64>,
+}
+
+impl std::fmt::Debug for RaggedKv {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("RaggedKv")
+            .field("rows", &self.len.len())
+            .field("slots", &self.slots)
+            .field("cols", &self.cols)
+            .finish()
+    }
+}
+
+impl RaggedKv {
+    pub fn empty(n_tensors: usize, heads: usize, head_dim: usize) -> RaggedKv {
+        RaggedKv {
+            heads,
+            head_dim,
+            n_tensors,
+            tensors: Vec::new(),
+            slots: 0,
+            cols: 0,
+            len: Vec::new(),
+            next_pos: Vec::new(),
+        }
+    }
+
+    /// Live rows.
+    pub fn batch(&self) -> usize {
+        self.len.len()
+    }
+
+    /// Rows the step runs: the live rows and the dead slots after them.
+    pub fn slots(&self) -> usize {
+        self.slots
+    }
+
+    pub fn capacity(&self) -> usize {
+        self.cols
+    }
+
+    pub fn lens(&self) -> &[usize] {
+        &self.len
+    }
+
+    pub fn real_positions(&self) -> usize {
+        self.len.iter().sum()
+    }
+
+    pub fn next_positions(&self) -> &[i64] {
+        &self.next_pos
+    }
+
+    fn plane(&self) -> usize {
+        self.cols * self.head_dim
+    }
+
+    fn row_len(&self) -> usize {
+        self.heads * self.plane()
+    }
+
+    /// The tensors, to bind as the step's past inputs and present outputs.
+    pub(crate) fn tensors_mut(&mut self) -> &mut [Tensor<f32>] {
+        &mut self.tensors
+    }
+
+    /// Fresh zeroed tensors of `slots × cols`, holding the live rows' written columns.
+    fn relayout(&mut self, slots: usize, cols: usize) -> Result<(), InferError> {
+        let (h, dh) = (self.heads, self.head_dim);
+        let old_plane = self.plane();
+        let new_plane = cols * dh;
+        let mut out = Vec::with_capacity(self.n_tensors);
+        for i in 0..self.n_tensors {
+            let mut t = Tensor::<f32>::new(&Allocator::default(), [slots.max(1), h, cols, dh])
+                .map_err(bad)?;
+            let (_, dst) = t.extract_tensor_mut();
+            // Never-written slots hold zeros, not whatever the allocator left: the op
+            // reads only a row's own columns, but finite values cost nothing to promise.
+            dst.fill(0.0);
+            if let Some(old) = self.tensors.get(i) {
+                let (_, src) = old.extract_tensor();
+                for (r, &n) in self.len.iter().enumerate() {
+                    for hh in 0..h {
+                        let s = (r * h + hh) * old_plane;
+                        let d = (r * h + hh) * new_plane;
+                        dst[d..d + n * dh].copy_from_slice(&src[s..s + n * dh]);
+                    }
+                }
+            }
+            out.push(t);
+        }
+        self.tensors = out;
+        self.slots = slots;
+        self.cols = cols;
+        Ok(())
+    }
+
+    /// Appends rows of a prefill's cache (in that order; one may be taken several times),
+    /// each row's real columns (mask 1) packed to the front.
+    pub fn append_rows(&mut self, src: &KvCache, rows: &[usize]) -> Result<(), InferError> {
+        if rows.is_empty() {
+            return Ok(());
+        }
+        if let Some(&r) = rows.iter().find(|&&r| r >= src.batch()) {
+            return Err(bad(format!("row {r} of {}", src.batch())));
+        }
+        let t0 = src.tensor(0);
+        let (_, h, _, dh) = t0.dim();
+        if (h, dh) != (self.heads, self.head_dim) {
+            return Err(bad("head shapes differ"));
+        }
+        let mask = src.mask();
+        let real: Vec<Vec<usize>> = rows
+            .iter()
+            .map(|&s| (0..mask.ncols()).filter(|&c| mask[[s, c]] != 0).collect())
+            .collect();
+        let live = self.batch();
+        let need_rows = live + rows.len();
+        let longest = real
+            .iter()
+            .map(Vec::len)
+            .chain(self.len.iter().copied())
+            .max()
+            .unwrap_or(0);
+        if need_rows > self.slots || longest + 1 > self.cols {
+            let cols = round_up(longest + 1).max(self.cols);
+            self.relayout(need_rows, cols)?;
+        }
+        let plane = self.plane();
+        for (i, tensor) in self.tensors.iter_mut().enumerate() {
+            let s = src.tensor(i);
+            let (_, dst) = tensor.extract_tensor_mut();
+            for (k, (&row, cols)) in rows.iter().zip(&real).enumerate() {
+                let r = live + k;
+                for hh in 0..h {
+                    let base = (r * h + hh) * plane;
+                    for (j, &c) in cols.iter().enumerate() {
+                        let to = base + j * dh;
+                        for (e, slot) in dst[to..to + dh].iter_mut().enumerate() {
+                            *slot = s[[row, hh, c, e]];
+                        }
+                    }
+                }
+            }
+        }
+        for (&row, cols) in rows.iter().zip(&real) {
+            self.len.push(cols.len());
+            self.next_pos.push(src.next_positions()[row]);
+        }
+        Ok(())
+    }
+
+    /// Room for one more column in every live row (called before a step).
+    pub(crate) fn reserve_step(&mut self) -> Result<(), InferError> {
+        let longest = self.len.iter().copied().max().unwrap_or(0);
+        if longest + 1 > self.cols {
+            self.relayout(self.slots, self.cols + GROW)?;
+        }
+        Ok(())
+    }
+
+    /// After a step wrote column `len[r]` of every live row.
+    pub(crate) fn advance(&mut self) {
+        for (n, p) in self.len.iter_mut().zip(&mut self.next_pos) {
+            *n += 1;
+            *p += 1;
+        }
+    }
+
+    /// Keeps the live rows `keep` (ascending, distinct) and returns, for each row now in
+    /// the cache, the index it had before; vacated slots below the new row count take rows
+    /// from the end, as [`KvCache::retain`] does.
+    pub fn retain(&mut self, keep: &[usize]) -> Result<Vec<usize>, InferError> {
+        if keep.windows(2).any(|w| w[0] >= w[1]) {
+            return Err(bad("rows to keep must be ascending and distinct"));
+        }
+        if let Some(&r) = keep.iter().find(|&&r| r >= self.batch()) {
+            return Err(bad(format!("row {r} of {}", self.batch())));
+        }
+        let n = keep.len();
+        let mut order: Vec<usize> = (0..n).collect();
+        let holes = (0..n).filter(|r| keep.binary_search(r).is_err());
+        let movers = keep.iter().copied().filter(|&r| r >= n);
+        let rl = self.row_len();
+        for (hole, from) in holes.zip(movers) {
+            for t in &mut self.tensors {
+                let (_, d) = t.extract_tensor_mut();
+                d.copy_within(from * rl..(from + 1) * rl, hole * rl);
+            }
+            self.len[hole] = self.len[from];
+            self.next_pos[hole] = self.next_pos[from];
+            order[hole] = from;
+        }
+        self.len.truncate(n);
+        self.next_pos.truncate(n);
+        if n == 0 {
+            *self = RaggedKv::empty(self.n_tensors, self.heads, self.head_dim);
+            return Ok(order);
+        }
+        // Dead slots still run each step, and unused columns still take memory: compact
+        // once either slack is large enough to be worth one copy of the live rows.
+        let dead = self.slots - n;
+        let cols = round_up(self.len.iter().copied().max().unwrap_or(0) + 1);
+        if dead >= 2.max(self.slots / 4) || self.cols >= cols + 2 * GROW {
+            self.relayout(n, cols)?;
+        }
+        Ok(order)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use ndarray::{Array2, Array4};
+
+    /// A prefill-like source: value = row * 1000 + column, mask from `masks`.
+    fn source(masks: &[&[i64]]) -> KvCache {
+        let (b, s) = (masks.len(), masks[0].len());
+        let a = Array4::from_shape_fn((b, 2, s, 3), |(r, _, c, _)| (r * 1000 + c) as f32);
+        let mask = Array2::from_shape_fn((b, s), |(r, c)| masks[r][c]);
+        KvCache::from_new(&[a.view(), a.view()], mask, vec![s as i64; b]).unwrap()
+    }
+
+    fn value(c: &RaggedKv, t: usize, r: usize, col: usize) -> f32 {
+        let (_, d) = c.tensors[t].extract_tensor();
+        d[((r * 2 + 1) * c.cols + col) * 3 + 2]
+    }
+
+    fn ort_available() -> bool {
+        // Tensors are allocated by ONNX Runtime; without the library these tests cannot run.
+        crate::infer::Runtime::init(None).is_ok()
+    }
+
+    #[test]
+    fn rows_are_packed_to_the_front_and_keep_their_own_lengths() {
+        if !ort_available() {
+            eprintln!("skipped: ONNX Runtime not found");
+            return;
+        }
+        let mut c = RaggedKv::empty(2, 2, 3);
+        c.append_rows(&source(&[&[1, 1, 0, 1], &[1, 1, 1, 1]]), &[0, 1, 0])
+            .unwrap();
+        assert_eq!(c.lens(), &[3, 4, 3]);
+        assert_eq!(c.batch(), 3);
+        assert!(c.capacity() >= 5);
+        // Row 0's third real column is source column 3.
+        assert_eq!(value(&c, 1, 0, 2), 3.0);
+        assert_eq!(value(&c, 1, 1, 3), 1003.0);
+        assert_eq!(value(&c, 1, 0, 3), 0.0);
+        c.advance();
+        assert_eq!(c.lens(), &[4, 5, 4]);
+        assert_eq!(c.next_positions(), &[5, 5, 5]);
+        // Row 1 leaves: the last row fills its slot.
+        let order = c.retain(&[0, 2]).unwrap();
+        assert_eq!(order, vec![0, 2]);
+        assert_eq!(c.lens(), &[4, 4]);
+        assert_eq!(value(&c, 0, 1, 2), 3.0);
+        assert!(c.slots() >= c.batch());
+        assert!(c.retain(&[1, 0]).is_err());
+        assert!(c.retain(&[]).unwrap().is_empty());
+        assert_eq!((c.batch(), c.slots()), (0, 0));
+    }
+
+    #[test]
+    fn slack_is_compacted_and_columns_grow_before_a_step() {
+        if !ort_available() {
+            eprintln!("skipped: ONNX Runtime not found");
+            return;
+        }
+        let mut c = RaggedKv::empty(2, 2, 3);
+        let src = source(&[&[1; 5]]);
+        c.append_rows(&src, &[0; 8]).unwrap();
+        assert_eq!(c.slots(), 8);
+        c.retain(&[0, 1, 2, 3, 4, 5, 6]).unwrap();
+        assert_eq!(c.slots(), 8, "one dead slot is not worth a copy");
+        c.retain(&[0, 1, 2, 3]).unwrap();
+        assert_eq!(c.slots(), 4, "half the slots dead: compacted");
+        for _ in 0..(2 * GROW) {
+            c.reserve_step().unwrap();
+            assert!(c.lens().iter().all(|&n| n < c.capacity()));
+            c.advance();
+        }
+        assert_eq!(c.lens(), &[5 + 2 * GROW; 4]);
+        assert_eq!(value(&c, 0, 3, 4), 4.0);
+    }
+}
