@@ -81,6 +81,9 @@ pub struct DecodeMetrics {
     positions: IntCounter,
     real_positions: IntCounter,
     decode_seconds: prometheus::Counter,
+    encode_seconds: prometheus::Counter,
+    prefill_seconds: prometheus::Counter,
+    cache_seconds: prometheus::Counter,
     running: IntGauge,
     waiting: IntGauge,
     tokens_per_second: Gauge,
@@ -107,7 +110,7 @@ impl DecodeMetrics {
             )?,
             positions: register_int_counter_with_registry!(
                 "rigserve_decode_cache_positions_total",
-                "Cache positions decode steps attended over (rows x columns, padding included)",
+                "Cache positions decode steps read (rows x columns with padding for the dense cache; each row's own length for the ragged step)",
                 registry
             )?,
             real_positions: register_int_counter_with_registry!(
@@ -118,6 +121,21 @@ impl DecodeMetrics {
             decode_seconds: prometheus::register_counter_with_registry!(
                 "rigserve_decode_seconds_total",
                 "Time spent in decode steps",
+                registry
+            )?,
+            encode_seconds: prometheus::register_counter_with_registry!(
+                "rigserve_encode_seconds_total",
+                "Time spent in point-cloud encoder calls",
+                registry
+            )?,
+            prefill_seconds: prometheus::register_counter_with_registry!(
+                "rigserve_prefill_seconds_total",
+                "Time spent in prefill calls (prefix and prompt of joining jobs)",
+                registry
+            )?,
+            cache_seconds: prometheus::register_counter_with_registry!(
+                "rigserve_decode_cache_seconds_total",
+                "Time spent reorganizing the decode cache as rows join and leave",
                 registry
             )?,
             running: register_int_gauge_with_registry!(
@@ -153,6 +171,10 @@ impl DecodeMetrics {
             now.decode_real_positions
                 .saturating_sub(last.decode_real_positions),
         );
+        let secs = |a: u64, b: u64| a.saturating_sub(b) as f64 * 1e-9;
+        self.encode_seconds.inc_by(secs(now.encode_ns, last.encode_ns));
+        self.prefill_seconds.inc_by(secs(now.prefill_ns, last.prefill_ns));
+        self.cache_seconds.inc_by(secs(now.cache_ns, last.cache_ns));
         let dns = now.decode_ns.saturating_sub(last.decode_ns);
         self.decode_seconds.inc_by(dns as f64 * 1e-9);
         if dns > 0 {

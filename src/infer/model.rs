@@ -114,6 +114,52 @@ pub struct ModelInfo {
     pub exporter: Option<String>,
 }
 
+/// `points` (B, N, 6) → prefix (B, L, d), checked.
+fn run_encoder(
+    session: &mut Session,
+    info: &ModelInfo,
+    points: &Array3<f32>,
+) -> Result<Array3<f32>, InferError> {
+    let (b, n, c) = points.dim();
+    if b == 0 || n == 0 || c != 6 {
+        return Err(InferError::InvalidRequest(format!(
+            "encoder input must be (B ≥ 1, N ≥ 1, 6), got ({b}, {n}, {c})"
+        )));
+    }
+    let input = TensorRef::from_array_view(points.view())
+        .map_err(|e| InferError::run("encoder input", e))?;
+    let out = session
+        .run(ort::inputs!["points" => input])
+        .map_err(|e| InferError::run("encoder", e))?;
+    let prefix = out["prefix"]
+        .try_extract_array::<f32>()
+        .map_err(|e| InferError::run("encoder output", e))?;
+    let want = [b, info.n_latents, info.d_model];
+    if prefix.shape() != want {
+        return Err(InferError::OutputShape {
+            name: "prefix".into(),
+            got: prefix.shape().to_vec(),
+            expected: format!("{want:?}"),
+        });
+    }
+    Ok(prefix
+        .into_dimensionality::<Ix3>()
+        .expect("shape checked")
+        .to_owned())
+}
+
+/// An encoder session of its own ([`SkeletonModel::open_encoder`]).
+pub struct PointEncoder {
+    session: Session,
+    info: ModelInfo,
+}
+
+impl PointEncoder {
+    pub fn encode(&mut self, points: &Array3<f32>) -> Result<Array3<f32>, InferError> {
+        run_encoder(&mut self.session, &self.info, points)
+    }
+}
+
 /// A loaded `skeleton-v2` model. `run` needs `&mut`, so one thread owns it (see
 /// [`super::Backend`]).
 pub struct SkeletonModel {
@@ -126,6 +172,9 @@ pub struct SkeletonModel {
     past_names: Vec<String>,
     new_names: Vec<String>,
     present_names: Vec<String>,
+    /// How it was opened, to open the encoder again ([`SkeletonModel::open_encoder`]).
+    rt: Runtime,
+    session: SessionConfig,
 }
 
 impl std::fmt::Debug for SkeletonModel {
@@ -472,6 +521,8 @@ impl SkeletonModel {
             past_names,
             new_names,
             present_names,
+            rt: rt.clone(),
+            session: cfg.clone(),
         })
     }
 
@@ -490,33 +541,16 @@ impl SkeletonModel {
 
     /// `points` (B, N, 6) → prefix (B, L, d).
     pub fn encode(&mut self, points: &Array3<f32>) -> Result<Array3<f32>, InferError> {
-        let (b, n, c) = points.dim();
-        if b == 0 || n == 0 || c != 6 {
-            return Err(InferError::InvalidRequest(format!(
-                "encoder input must be (B ≥ 1, N ≥ 1, 6), got ({b}, {n}, {c})"
-            )));
-        }
-        let input = TensorRef::from_array_view(points.view())
-            .map_err(|e| InferError::run("encoder input", e))?;
-        let out = self
-            .encoder
-            .run(ort::inputs!["points" => input])
-            .map_err(|e| InferError::run("encoder", e))?;
-        let prefix = out["prefix"]
-            .try_extract_array::<f32>()
-            .map_err(|e| InferError::run("encoder output", e))?;
-        let want = [b, self.info.n_latents, self.info.d_model];
-        if prefix.shape() != want {
-            return Err(InferError::OutputShape {
-                name: "prefix".into(),
-                got: prefix.shape().to_vec(),
-                expected: format!("{want:?}"),
-            });
-        }
-        Ok(prefix
-            .into_dimensionality::<Ix3>()
-            .expect("shape checked")
-            .to_owned())
+        run_encoder(&mut self.encoder, &self.info, points)
+    }
+
+    /// A second session of the encoder, for callers that encode on their own thread (the
+    /// backend's workers, so the inference thread only decodes).
+    pub fn open_encoder(&self) -> Result<PointEncoder, InferError> {
+        Ok(PointEncoder {
+            session: open_session(&self.rt, &self.files.encoder, &self.session)?,
+            info: self.info.clone(),
+        })
     }
 
     /// First decoder call for a batch: `prefixes` (B, L, d) from the encoder, `prompts`

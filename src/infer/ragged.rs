@@ -109,18 +109,21 @@ impl RaggedKv {
             let mut t = Tensor::<f32>::new(&Allocator::default(), [slots.max(1), h, cols, dh])
                 .map_err(bad)?;
             let (_, dst) = t.extract_tensor_mut();
-            // Never-written slots hold zeros, not whatever the allocator left: the op
-            // reads only a row's own columns, but finite values cost nothing to promise.
-            dst.fill(0.0);
-            if let Some(old) = self.tensors.get(i) {
-                let (_, src) = old.extract_tensor();
-                for (r, &n) in self.len.iter().enumerate() {
-                    for hh in 0..h {
+            // Every slot past a row's written columns is zeroed rather than left as the
+            // allocator's bytes: the op reads only a row's own columns, but finite values
+            // cost little to promise. Written columns are copied, not zeroed first.
+            let old = self.tensors.get(i).map(|t| t.extract_tensor().1);
+            for (p, plane) in dst.chunks_exact_mut(new_plane).enumerate() {
+                let (r, hh) = (p / h, p % h);
+                let n = match (old, self.len.get(r)) {
+                    (Some(src), Some(&n)) => {
                         let s = (r * h + hh) * old_plane;
-                        let d = (r * h + hh) * new_plane;
-                        dst[d..d + n * dh].copy_from_slice(&src[s..s + n * dh]);
+                        plane[..n * dh].copy_from_slice(&src[s..s + n * dh]);
+                        n * dh
                     }
-                }
+                    _ => 0,
+                };
+                plane[n..].fill(0.0);
             }
             out.push(t);
         }
