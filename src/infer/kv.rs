@@ -60,6 +60,30 @@ fn bad(m: impl std::fmt::Display) -> InferError {
     InferError::run("kv cache", m)
 }
 
+/// For keeping rows `keep` (ascending, distinct, < `rows`) of a batch: each vacated slot
+/// below the new row count takes a kept row from the end. Returns those moves (slot,
+/// row) and, for each slot after them, the row it held before.
+pub(super) fn fill_moves(
+    keep: &[usize],
+    rows: usize,
+) -> Result<(Vec<(usize, usize)>, Vec<usize>), InferError> {
+    if keep.windows(2).any(|w| w[0] >= w[1]) {
+        return Err(bad("rows to keep must be ascending and distinct"));
+    }
+    if let Some(&r) = keep.iter().find(|&&r| r >= rows) {
+        return Err(bad(format!("row {r} of {rows}")));
+    }
+    let n = keep.len();
+    let holes = (0..n).filter(|r| keep.binary_search(r).is_err());
+    let movers = keep.iter().copied().filter(|&r| r >= n);
+    let moves: Vec<(usize, usize)> = holes.zip(movers).collect();
+    let mut order: Vec<usize> = (0..n).collect();
+    for &(hole, from) in &moves {
+        order[hole] = from;
+    }
+    Ok((moves, order))
+}
+
 fn round_up(n: usize) -> usize {
     n.div_ceil(GROW).max(1) * GROW
 }
@@ -299,18 +323,10 @@ impl KvCache {
     /// cache, the index it had before. Rows are not kept in order: each vacated slot below
     /// the new row count takes a kept row from the end.
     pub fn retain(&mut self, keep: &[usize]) -> Result<Vec<usize>, InferError> {
-        if keep.windows(2).any(|w| w[0] >= w[1]) {
-            return Err(bad("rows to keep must be ascending and distinct"));
-        }
-        if let Some(&r) = keep.iter().find(|&&r| r >= self.rows) {
-            return Err(bad(format!("row {r} of {}", self.rows)));
-        }
+        let (moves, order) = fill_moves(keep, self.rows)?;
         let n = keep.len();
-        let mut order: Vec<usize> = (0..n).collect();
-        let holes = (0..n).filter(|r| keep.binary_search(r).is_err());
-        let movers = keep.iter().copied().filter(|&r| r >= n);
         let rl = self.row_len();
-        for (hole, from) in holes.zip(movers) {
+        for (hole, from) in moves {
             for buf in &mut self.bufs {
                 buf.copy_within(from * rl..(from + 1) * rl, hole * rl);
             }
@@ -318,7 +334,6 @@ impl KvCache {
             self.mask.copy_within(from * c..(from + 1) * c, hole * c);
             self.next_pos[hole] = self.next_pos[from];
             self.real[hole] = self.real[from];
-            order[hole] = from;
         }
         self.rows = n;
         self.next_pos.truncate(n);

@@ -607,6 +607,22 @@ impl SkeletonModel {
         Ok((logits, cache))
     }
 
+    /// One token per row, and every row still inside the position table.
+    fn check_step(&self, tokens: usize, rows: usize, next: &[i64]) -> Result<(), InferError> {
+        if tokens != rows || rows == 0 {
+            return Err(InferError::InvalidRequest(format!(
+                "decode step with {tokens} tokens for a cache of {rows} rows"
+            )));
+        }
+        if next.iter().any(|&p| p as usize >= self.info.max_positions) {
+            return Err(InferError::InvalidRequest(format!(
+                "a sequence would pass the model's {} positions",
+                self.info.max_positions
+            )));
+        }
+        Ok(())
+    }
+
     /// One cached step: appends `tokens` (one per cache row) and returns the next-token
     /// logits (B, V). On error the cache is left as it was.
     pub fn decode_step(
@@ -615,22 +631,7 @@ impl SkeletonModel {
         cache: &mut KvCache,
     ) -> Result<Array2<f32>, InferError> {
         let b = cache.batch();
-        if tokens.len() != b || b == 0 {
-            return Err(InferError::InvalidRequest(format!(
-                "decode step with {} tokens for a cache of {b} rows",
-                tokens.len()
-            )));
-        }
-        if cache
-            .next_positions()
-            .iter()
-            .any(|&p| p as usize >= self.info.max_positions)
-        {
-            return Err(InferError::InvalidRequest(format!(
-                "a sequence would pass the model's {} positions",
-                self.info.max_positions
-            )));
-        }
+        self.check_step(tokens.len(), b, cache.next_positions())?;
         let ids = Array2::from_shape_vec((b, 1), tokens.iter().map(|&t| t as i64).collect())
             .expect("b×1");
         let pos = Array2::from_shape_vec((b, 1), cache.next_positions().to_vec()).expect("b×1");
@@ -667,22 +668,7 @@ impl SkeletonModel {
         cache: &mut RaggedKv,
     ) -> Result<Array2<f32>, InferError> {
         let b = cache.batch();
-        if tokens.len() != b || b == 0 {
-            return Err(InferError::InvalidRequest(format!(
-                "decode step with {} tokens for a cache of {b} rows",
-                tokens.len()
-            )));
-        }
-        if cache
-            .next_positions()
-            .iter()
-            .any(|&p| p as usize >= self.info.max_positions)
-        {
-            return Err(InferError::InvalidRequest(format!(
-                "a sequence would pass the model's {} positions",
-                self.info.max_positions
-            )));
-        }
+        self.check_step(tokens.len(), b, cache.next_positions())?;
         let Some(step) = self.step.as_mut() else {
             return Err(InferError::InvalidRequest(
                 "this model has no decoder_step.onnx".into(),

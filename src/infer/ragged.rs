@@ -10,7 +10,7 @@
 //! away. They still run (one position each, their logits dropped) until the slack is worth
 //! a relayout, which is cheaper than resizing the tensors every time a row finishes.
 
-use super::kv::{KvCache, GROW};
+use super::kv::{fill_moves, KvCache, GROW};
 use super::InferError;
 use ort::memory::Allocator;
 use ort::value::Tensor;
@@ -209,25 +209,16 @@ impl RaggedKv {
     /// the cache, the index it had before; vacated slots below the new row count take rows
     /// from the end, as [`KvCache::retain`] does.
     pub fn retain(&mut self, keep: &[usize]) -> Result<Vec<usize>, InferError> {
-        if keep.windows(2).any(|w| w[0] >= w[1]) {
-            return Err(bad("rows to keep must be ascending and distinct"));
-        }
-        if let Some(&r) = keep.iter().find(|&&r| r >= self.batch()) {
-            return Err(bad(format!("row {r} of {}", self.batch())));
-        }
+        let (moves, order) = fill_moves(keep, self.batch())?;
         let n = keep.len();
-        let mut order: Vec<usize> = (0..n).collect();
-        let holes = (0..n).filter(|r| keep.binary_search(r).is_err());
-        let movers = keep.iter().copied().filter(|&r| r >= n);
         let rl = self.row_len();
-        for (hole, from) in holes.zip(movers) {
+        for (hole, from) in moves {
             for t in &mut self.tensors {
                 let (_, d) = t.extract_tensor_mut();
                 d.copy_within(from * rl..(from + 1) * rl, hole * rl);
             }
             self.len[hole] = self.len[from];
             self.next_pos[hole] = self.next_pos[from];
-            order[hole] = from;
         }
         self.len.truncate(n);
         self.next_pos.truncate(n);
