@@ -293,7 +293,11 @@ fn batched_equals_alone() {
     }
 
     let dense = backend_with(&rt, true, false);
-    for (name, b) in [("kv", &kv), ("dense", &dense), ("recompute", &backend(&rt, false))] {
+    for (name, b) in [
+        ("kv", &kv),
+        ("dense", &dense),
+        ("recompute", &backend(&rt, false)),
+    ] {
         let before = b.metrics();
         let mut pending = Vec::new();
         for (k, r) in reqs.iter().enumerate() {
@@ -566,7 +570,10 @@ fn start_up_errors_are_typed() {
     );
     std::fs::remove_file(&files.step).unwrap();
     let m = SkeletonModel::load(&rt, &files, &SessionConfig::default()).unwrap();
-    assert!(!m.has_step(), "without the file decode steps use decoder.onnx");
+    assert!(
+        !m.has_step(),
+        "without the file decode steps use decoder.onnx"
+    );
 
     // Another library path than the loaded one is refused rather than ignored.
     let other = tmp.path().join("libonnxruntime.so");

@@ -172,8 +172,10 @@ impl DecodeMetrics {
                 .saturating_sub(last.decode_real_positions),
         );
         let secs = |a: u64, b: u64| a.saturating_sub(b) as f64 * 1e-9;
-        self.encode_seconds.inc_by(secs(now.encode_ns, last.encode_ns));
-        self.prefill_seconds.inc_by(secs(now.prefill_ns, last.prefill_ns));
+        self.encode_seconds
+            .inc_by(secs(now.encode_ns, last.encode_ns));
+        self.prefill_seconds
+            .inc_by(secs(now.prefill_ns, last.prefill_ns));
         self.cache_seconds.inc_by(secs(now.cache_ns, last.cache_ns));
         let dns = now.decode_ns.saturating_sub(last.decode_ns);
         self.decode_seconds.inc_by(dns as f64 * 1e-9);

@@ -20,8 +20,8 @@
 
 use super::cache::DecodeCache;
 use super::kv::KvCache;
-use super::prefill::{self, Prepared, Ready};
 use super::model::{ModelInfo, PointEncoder, SkeletonModel};
+use super::prefill::{self, Prepared, Ready};
 use super::sampling::{completion_cost, constrain_logits, Sampler, SamplingParams};
 use super::InferError;
 use crate::rig::grammar::Grammar;
@@ -425,7 +425,10 @@ impl Backend {
             Metrics::add(&self.metrics.encode_calls, 1);
             Metrics::add(&self.metrics.encode_rows, 1);
             let prefix = Arc::new(out.index_axis(Axis(0), 0).to_owned());
-            for j in jobs[i..].iter_mut().filter(|j| Arc::ptr_eq(&j.points, &pts)) {
+            for j in jobs[i..]
+                .iter_mut()
+                .filter(|j| Arc::ptr_eq(&j.points, &pts))
+            {
                 j.prefix = Some(prefix.clone());
             }
         }

@@ -35,8 +35,8 @@ pub use backend::{
 };
 pub use error::InferError;
 pub use kv::KvCache;
-pub use ragged::RaggedKv;
 pub use model::{ModelFiles, ModelInfo, SessionConfig, SkeletonModel, Variant, CONTRACT};
+pub use ragged::RaggedKv;
 pub use runtime::{resolve_library, Runtime, ORT_LIB_DEFAULT, ORT_LIB_ENV, ORT_LIB_NAME};
 pub use sampling::{Sampler, SamplingParams};
 pub use skin_model::{SkinModel, ROWS_PER_CALL, SKIN_CONTRACT};

@@ -377,7 +377,15 @@ fn load_step(
     let step = open_session(rt, path, cfg)?;
     let got = read_metadata(&step, path, "decoder_step")?;
     let same = |a: &ModelInfo| {
-        (a.d_model, a.n_latents, a.n_layers, a.n_heads, a.head_dim, a.vocab_size, a.max_positions)
+        (
+            a.d_model,
+            a.n_latents,
+            a.n_layers,
+            a.n_heads,
+            a.head_dim,
+            a.vocab_size,
+            a.max_positions,
+        )
     };
     if same(&got) != same(info) {
         return Err(InferError::Contract {
@@ -391,16 +399,44 @@ fn load_step(
     }
     let kv_dims = [Dynamic, Is(info.n_heads), Dynamic, Is(info.head_dim)];
     let mut ins = vec![
-        Expect { name: "input_ids", ty: Int64, dims: &[Dynamic, Is(1)] },
-        Expect { name: "position_ids", ty: Int64, dims: &[Dynamic, Is(1)] },
-        Expect { name: "seqlens_k", ty: Int32, dims: &[Dynamic] },
-        Expect { name: "total_sequence_length", ty: Int32, dims: &[] },
+        Expect {
+            name: "input_ids",
+            ty: Int64,
+            dims: &[Dynamic, Is(1)],
+        },
+        Expect {
+            name: "position_ids",
+            ty: Int64,
+            dims: &[Dynamic, Is(1)],
+        },
+        Expect {
+            name: "seqlens_k",
+            ty: Int32,
+            dims: &[Dynamic],
+        },
+        Expect {
+            name: "total_sequence_length",
+            ty: Int32,
+            dims: &[],
+        },
     ];
-    ins.extend(past_names.iter().map(|n| Expect { name: n, ty: Float32, dims: &kv_dims }));
+    ins.extend(past_names.iter().map(|n| Expect {
+        name: n,
+        ty: Float32,
+        dims: &kv_dims,
+    }));
     check_outlets(path, "decode step inputs", step.inputs(), &ins)?;
     let logits_dims = [Dynamic, Is(1), Is(info.vocab_size)];
-    let mut outs = vec![Expect { name: "logits", ty: Float32, dims: &logits_dims }];
-    outs.extend(present_names.iter().map(|n| Expect { name: n, ty: Float32, dims: &kv_dims }));
+    let mut outs = vec![Expect {
+        name: "logits",
+        ty: Float32,
+        dims: &logits_dims,
+    }];
+    outs.extend(present_names.iter().map(|n| Expect {
+        name: n,
+        ty: Float32,
+        dims: &kv_dims,
+    }));
     check_outlets(path, "decode step outputs", step.outputs(), &outs)?;
     Ok(step)
 }
@@ -508,7 +544,14 @@ impl SkeletonModel {
             .flat_map(|i| [format!("present.{i}.key"), format!("present.{i}.value")])
             .collect();
         let step = if files.step.is_file() {
-            Some(load_step(rt, files, cfg, &info, &past_names, &present_names)?)
+            Some(load_step(
+                rt,
+                files,
+                cfg,
+                &info,
+                &past_names,
+                &present_names,
+            )?)
         } else {
             None
         };
@@ -690,13 +733,22 @@ impl SkeletonModel {
         let run = |e: ort::Error| InferError::run("decode step", e);
         let mut binding = step.create_binding().map_err(run)?;
         binding
-            .bind_input("input_ids", &Tensor::from_array(([slots, 1], ids)).map_err(input)?)
+            .bind_input(
+                "input_ids",
+                &Tensor::from_array(([slots, 1], ids)).map_err(input)?,
+            )
             .map_err(input)?;
         binding
-            .bind_input("position_ids", &Tensor::from_array(([slots, 1], pos)).map_err(input)?)
+            .bind_input(
+                "position_ids",
+                &Tensor::from_array(([slots, 1], pos)).map_err(input)?,
+            )
             .map_err(input)?;
         binding
-            .bind_input("seqlens_k", &Tensor::from_array(([slots], seqlens)).map_err(input)?)
+            .bind_input(
+                "seqlens_k",
+                &Tensor::from_array(([slots], seqlens)).map_err(input)?,
+            )
             .map_err(input)?;
         let shape: [usize; 0] = [];
         binding
@@ -738,7 +790,11 @@ impl SkeletonModel {
 
     /// An empty ragged cache shaped for this model.
     pub fn empty_ragged(&self) -> RaggedKv {
-        RaggedKv::empty(2 * self.info.n_layers, self.info.n_heads, self.info.head_dim)
+        RaggedKv::empty(
+            2 * self.info.n_layers,
+            self.info.n_heads,
+            self.info.head_dim,
+        )
     }
 
     /// Next-token logits for whole sequences without a cache (the reference the cached

@@ -35,7 +35,11 @@ fn encode(
     metrics: &Metrics,
     jobs: &[Job],
 ) -> Result<Vec<Arc<Array2<f32>>>, InferError> {
-    if let Some(done) = jobs.iter().map(|j| j.prefix.clone()).collect::<Option<Vec<_>>>() {
+    if let Some(done) = jobs
+        .iter()
+        .map(|j| j.prefix.clone())
+        .collect::<Option<Vec<_>>>()
+    {
         return Ok(done);
     }
     let mut sets: Vec<Arc<[[f32; 6]]>> = Vec::new();
