@@ -181,7 +181,6 @@ fn load_models(m: &ModelSetup) -> Result<(Backend, Option<SkinModel>), InferErro
             max_batch: m.max_batch,
             kv_cache: true,
             ragged: m.ragged,
-            encode_on_caller: true,
         },
     )?;
     Ok((backend, skin))

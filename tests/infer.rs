@@ -61,7 +61,6 @@ fn backend_with(rt: &Runtime, kv_cache: bool, ragged: bool) -> Backend {
             max_batch: 32,
             kv_cache,
             ragged,
-            encode_on_caller: true,
         },
     )
     .unwrap()

@@ -289,7 +289,6 @@ fn decode(a: DecodeArgs) -> anyhow::Result<()> {
             max_batch,
             kv_cache: kv,
             ragged: true,
-            encode_on_caller: true,
         })?;
         anyhow::ensure!(
             a.tokens + 2 <= backend.info().max_tokens,
@@ -393,7 +392,6 @@ fn skeleton(a: SkeletonArgs) -> anyhow::Result<()> {
         max_batch: a.samples.max(1),
         kv_cache: true,
         ragged: true,
-        encode_on_caller: true,
     })?;
     let cfg = PredictConfig {
         samples: a.samples,

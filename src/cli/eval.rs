@@ -58,7 +58,6 @@ pub fn run(a: EvalArgs) -> anyhow::Result<()> {
             max_batch: a.decode.samples.max(1),
             kv_cache: true,
             ragged: true,
-            encode_on_caller: true,
         })?;
         let cfg = a.decode.predict_config(None);
         rigserve::eval::eval_model_skeleton(

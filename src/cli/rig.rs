@@ -223,7 +223,6 @@ fn predict(a: &RigArgs, mesh: &mesh::Mesh) -> anyhow::Result<Skeleton> {
         max_batch: a.decode.samples.max(1),
         kv_cache: true,
         ragged: true,
-        encode_on_caller: true,
     })?;
     let cfg = a.decode.predict_config(a.category.clone());
     let pred = predict_skeleton(&backend, mesh, &cfg, keep.as_ref())

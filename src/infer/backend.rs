@@ -12,16 +12,15 @@
 //!
 //! The cache stays in place ([`DecodeCache`]): with the model's ragged step
 //! (`decoder_step.onnx`, [`super::RaggedKv`]) each row keeps its own length and the step
-//! reads only that; without it ([`KvCache`]) rows share one length and the ones that joined
+//! reads only that; without it ([`KvCache`](super::KvCache)) rows share one length and the ones that joined
 //! later are left-padded to it. A step writes one new column; joining copies only the new
 //! rows, and a finished row is replaced by the last one. Callers get a
 //! [`Pending`] (a one-shot reply channel); dropping it cancels the request at the next
 //! step.
 
 use super::cache::DecodeCache;
-use super::kv::KvCache;
 use super::model::{ModelInfo, PointEncoder, SkeletonModel};
-use super::prefill::{self, Prepared, Ready};
+use super::prefill::{self, Prepared};
 use super::sampling::{completion_cost, constrain_logits, Sampler, SamplingParams};
 use super::InferError;
 use crate::rig::grammar::Grammar;
@@ -85,11 +84,6 @@ pub struct BackendConfig {
     /// Decode with the model's ragged step (`decoder_step.onnx`) when it has one: each
     /// row attends over its own length instead of the batch's longest.
     pub ragged: bool,
-    /// Run the point encoder on the thread that submits (a second encoder session, shared
-    /// under a lock) rather than on the inference thread, so encoding one job overlaps the
-    /// decode steps of the others: under load the inference thread is the bottleneck, and
-    /// the encoder took a fifth of it.
-    pub encode_on_caller: bool,
 }
 
 impl Default for BackendConfig {
@@ -98,7 +92,6 @@ impl Default for BackendConfig {
             max_batch: 32,
             kv_cache: true,
             ragged: true,
-            encode_on_caller: true,
         }
     }
 }
@@ -294,7 +287,7 @@ pub(super) struct Job {
     ignore_eos: bool,
     reply: Sender<Result<Generation, InferError>>,
     pub(super) cancel: Arc<AtomicBool>,
-    /// The encoder's output, when the submitting thread already ran it.
+    /// The encoder's output, which the submitting thread computes (see [`Backend`]).
     pub(super) prefix: Option<Arc<Array2<f32>>>,
 }
 
@@ -307,8 +300,10 @@ enum Command {
 pub struct Backend {
     tx: Option<Sender<Command>>,
     thread: Option<std::thread::JoinHandle<()>>,
-    /// See [`BackendConfig::encode_on_caller`].
-    encoder: Option<Mutex<PointEncoder>>,
+    /// The model's encoder session, run by the submitting threads under a lock rather than
+    /// by the inference thread, so encoding one job overlaps the decode steps of the others:
+    /// under load the inference thread is the bottleneck, and the encoder took a fifth of it.
+    encoder: Mutex<PointEncoder>,
     info: ModelInfo,
     config: BackendConfig,
     metrics: Arc<Metrics>,
@@ -325,14 +320,10 @@ impl std::fmt::Debug for Backend {
 
 impl Backend {
     /// Moves `model` onto a new inference thread.
-    pub fn new(model: SkeletonModel, config: BackendConfig) -> Result<Backend, InferError> {
+    pub fn new(mut model: SkeletonModel, config: BackendConfig) -> Result<Backend, InferError> {
         let info = model.info().clone();
         let metrics = Arc::new(Metrics::default());
-        let encoder = if config.encode_on_caller {
-            Some(Mutex::new(model.open_encoder()?))
-        } else {
-            None
-        };
+        let encoder = Mutex::new(model.take_encoder()?);
         let (tx, rx) = channel();
         let worker = Worker {
             cache: DecodeCache::for_model(&model, config.ragged),
@@ -341,7 +332,6 @@ impl Backend {
             max_batch: config.max_batch.max(1),
             rx,
             waiting: VecDeque::new(),
-            ready: VecDeque::new(),
             running: Vec::new(),
             metrics: metrics.clone(),
         };
@@ -394,9 +384,7 @@ impl Backend {
             jobs.push(job);
             pending.push(p);
         }
-        if let Some(enc) = &self.encoder {
-            self.encode_here(enc, &mut jobs)?;
-        }
+        self.encode_here(&mut jobs)?;
         let n = jobs.len() as u64;
         let tx = self.tx.as_ref().ok_or(InferError::BackendGone)?;
         tx.send(Command::Submit(jobs))
@@ -407,7 +395,7 @@ impl Backend {
 
     /// Encodes each distinct point set of `jobs` on this thread (candidates of one mesh
     /// share one set, so one call).
-    fn encode_here(&self, enc: &Mutex<PointEncoder>, jobs: &mut [Job]) -> Result<(), InferError> {
+    fn encode_here(&self, jobs: &mut [Job]) -> Result<(), InferError> {
         for i in 0..jobs.len() {
             if jobs[i].prefix.is_some() {
                 continue;
@@ -420,7 +408,11 @@ impl Backend {
                 }
             }
             let t = Instant::now();
-            let out = enc.lock().unwrap_or_else(|e| e.into_inner()).encode(&x)?;
+            let out = self
+                .encoder
+                .lock()
+                .unwrap_or_else(|e| e.into_inner())
+                .encode(&x)?;
             Metrics::add_time(&self.metrics.encode_ns, t);
             Metrics::add(&self.metrics.encode_calls, 1);
             Metrics::add(&self.metrics.encode_rows, 1);
@@ -580,10 +572,7 @@ struct Worker {
     kv_cache: bool,
     max_batch: usize,
     rx: Receiver<Command>,
-    /// Submitted jobs not yet prefilled.
     waiting: VecDeque<Job>,
-    /// Prefilled jobs waiting for room in the batch.
-    ready: VecDeque<Prepared>,
     running: Vec<Item>,
     /// Rows in `running` order; empty without a KV cache or when nothing runs.
     cache: DecodeCache,
@@ -591,13 +580,9 @@ struct Worker {
 }
 
 impl Worker {
-    fn idle(&self) -> bool {
-        self.running.is_empty() && self.waiting.is_empty() && self.ready.is_empty()
-    }
-
     fn run(mut self) {
         loop {
-            if self.idle() {
+            if self.running.is_empty() && self.waiting.is_empty() {
                 match self.rx.recv() {
                     Ok(cmd) => self.take(cmd),
                     Err(RecvError) => break,
@@ -628,11 +613,6 @@ impl Worker {
         for job in self.waiting.drain(..) {
             let _ = job.reply.send(gone());
         }
-        for p in self.ready.drain(..) {
-            for r in p.ready {
-                let _ = r.job.reply.send(gone());
-            }
-        }
         for item in self.running.drain(..) {
             let _ = item.reply.send(gone());
         }
@@ -649,39 +629,23 @@ impl Worker {
         self.metrics
             .running
             .store(self.running.len() as u64, Ordering::Relaxed);
-        let ready: usize = self.ready.iter().map(|p| p.ready.len()).sum();
         self.metrics
             .waiting
-            .store((self.waiting.len() + ready) as u64, Ordering::Relaxed);
+            .store(self.waiting.len() as u64, Ordering::Relaxed);
     }
 
-    fn room(&self) -> usize {
-        self.max_batch.saturating_sub(self.running.len())
-    }
-
-    /// Fills the batch's room: prefilled jobs first (a prefill may have had more jobs than
-    /// room), then as many waiting jobs as fit, prefilled together.
+    /// Prefills as many waiting jobs as the batch has room for, together, and lets them
+    /// join it.
     fn admit(&mut self) {
-        if self.ready.is_empty() && self.room() > 0 && !self.waiting.is_empty() {
-            let n = self.room().min(self.waiting.len());
-            let jobs: Vec<Job> = self.waiting.drain(..n).collect();
-            match prefill::prepare(&mut self.model, &self.metrics, jobs) {
-                Ok(p) => self.ready.push_back(p),
-                Err((jobs, e)) => fail_jobs(&self.metrics, jobs, e),
-            }
+        let room = self.max_batch.saturating_sub(self.running.len());
+        if room == 0 || self.waiting.is_empty() {
+            return;
         }
-        while self.room() > 0 {
-            let room = self.room();
-            let Some(front) = self.ready.front_mut() else {
-                break;
-            };
-            let k = room.min(front.ready.len());
-            let part: Vec<Ready> = front.ready.drain(..k).collect();
-            let src = front.cache.clone();
-            if front.ready.is_empty() {
-                self.ready.pop_front();
-            }
-            self.join(part, &src);
+        let n = room.min(self.waiting.len());
+        let jobs: Vec<Job> = self.waiting.drain(..n).collect();
+        match prefill::prepare(&mut self.model, &self.metrics, jobs) {
+            Ok(p) => self.join(p),
+            Err((jobs, e)) => fail_jobs(&self.metrics, jobs, e),
         }
     }
 
@@ -690,12 +654,6 @@ impl Worker {
         let before = self.waiting.len();
         self.waiting.retain(|j| live(&j.cancel));
         let mut gone = (before - self.waiting.len()) as u64;
-        for p in &mut self.ready {
-            let before = p.ready.len();
-            p.ready.retain(|r| live(&r.job.cancel));
-            gone += (before - p.ready.len()) as u64;
-        }
-        self.ready.retain(|p| !p.ready.is_empty());
         let keep: Vec<usize> = (0..self.running.len())
             .filter(|&i| live(&self.running[i].cancel))
             .collect();
@@ -740,8 +698,9 @@ impl Worker {
     }
 
     /// Prefilled jobs join the batch: each samples its first token, and those still going
-    /// copy their prefill row (`src`) into the running cache.
-    fn join(&mut self, part: Vec<Ready>, src: &KvCache) {
+    /// copy their row of the prefill's cache into the running cache.
+    fn join(&mut self, p: Prepared) {
+        let (part, src) = (p.ready, p.cache);
         let kv = self.kv_cache;
         let rows: Vec<usize> = part.iter().map(|r| r.row).collect();
         let views: Vec<_> = part.iter().map(|r| r.logits.view()).collect();
@@ -759,7 +718,7 @@ impl Worker {
                     ignore_eos: j.ignore_eos,
                     reply: j.reply,
                     cancel: j.cancel,
-                    prefix: (!kv).then_some(r.prefix),
+                    prefix: if kv { None } else { j.prefix },
                 }
             })
             .collect();
@@ -775,7 +734,7 @@ impl Worker {
         if kv {
             let t = Instant::now();
             let rows: Vec<usize> = keep.iter().map(|&i| rows[i]).collect();
-            let joined = self.cache.append_rows(src, &rows);
+            let joined = self.cache.append_rows(&src, &rows);
             Metrics::add(&self.metrics.cache_rebuilds, 1);
             Metrics::add_time(&self.metrics.cache_ns, t);
             if let Err(e) = joined {

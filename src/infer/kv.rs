@@ -60,13 +60,16 @@ fn bad(m: impl std::fmt::Display) -> InferError {
     InferError::run("kv cache", m)
 }
 
+/// A vacated slot and the row that moves into it.
+pub(super) type Move = (usize, usize);
+
 /// For keeping rows `keep` (ascending, distinct, < `rows`) of a batch: each vacated slot
 /// below the new row count takes a kept row from the end. Returns those moves (slot,
 /// row) and, for each slot after them, the row it held before.
 pub(super) fn fill_moves(
     keep: &[usize],
     rows: usize,
-) -> Result<(Vec<(usize, usize)>, Vec<usize>), InferError> {
+) -> Result<(Vec<Move>, Vec<usize>), InferError> {
     if keep.windows(2).any(|w| w[0] >= w[1]) {
         return Err(bad("rows to keep must be ascending and distinct"));
     }
@@ -76,7 +79,7 @@ pub(super) fn fill_moves(
     let n = keep.len();
     let holes = (0..n).filter(|r| keep.binary_search(r).is_err());
     let movers = keep.iter().copied().filter(|&r| r >= n);
-    let moves: Vec<(usize, usize)> = holes.zip(movers).collect();
+    let moves: Vec<Move> = holes.zip(movers).collect();
     let mut order: Vec<usize> = (0..n).collect();
     for &(hole, from) in &moves {
         order[hole] = from;

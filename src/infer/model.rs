@@ -148,7 +148,8 @@ fn run_encoder(
         .to_owned())
 }
 
-/// An encoder session of its own ([`SkeletonModel::open_encoder`]).
+/// The encoder session, on its own so the backend can run it on the submitting threads
+/// ([`SkeletonModel::take_encoder`]).
 pub struct PointEncoder {
     session: Session,
     info: ModelInfo,
@@ -163,7 +164,8 @@ impl PointEncoder {
 /// A loaded `skeleton-v2` model. `run` needs `&mut`, so one thread owns it (see
 /// [`super::Backend`]).
 pub struct SkeletonModel {
-    encoder: Session,
+    /// `None` once handed out by [`SkeletonModel::take_encoder`].
+    encoder: Option<PointEncoder>,
     decoder: Session,
     /// `decoder_step.onnx` when the folder has one.
     step: Option<Session>,
@@ -172,9 +174,6 @@ pub struct SkeletonModel {
     past_names: Vec<String>,
     new_names: Vec<String>,
     present_names: Vec<String>,
-    /// How it was opened, to open the encoder again ([`SkeletonModel::open_encoder`]).
-    rt: Runtime,
-    session: SessionConfig,
 }
 
 impl std::fmt::Debug for SkeletonModel {
@@ -556,7 +555,10 @@ impl SkeletonModel {
             None
         };
         Ok(SkeletonModel {
-            encoder,
+            encoder: Some(PointEncoder {
+                session: encoder,
+                info: info.clone(),
+            }),
             decoder,
             step,
             info,
@@ -564,8 +566,6 @@ impl SkeletonModel {
             past_names,
             new_names,
             present_names,
-            rt: rt.clone(),
-            session: cfg.clone(),
         })
     }
 
@@ -584,16 +584,18 @@ impl SkeletonModel {
 
     /// `points` (B, N, 6) → prefix (B, L, d).
     pub fn encode(&mut self, points: &Array3<f32>) -> Result<Array3<f32>, InferError> {
-        run_encoder(&mut self.encoder, &self.info, points)
+        self.encoder
+            .as_mut()
+            .ok_or_else(|| InferError::run("encoder", "the encoder was handed to the backend"))?
+            .encode(points)
     }
 
-    /// A second session of the encoder, for callers that encode on their own thread (the
-    /// backend's workers, so the inference thread only decodes).
-    pub fn open_encoder(&self) -> Result<PointEncoder, InferError> {
-        Ok(PointEncoder {
-            session: open_session(&self.rt, &self.files.encoder, &self.session)?,
-            info: self.info.clone(),
-        })
+    /// Hands out the encoder session, for callers that encode on their own thread (the
+    /// backend's submitters, so the inference thread only prefills and decodes).
+    pub fn take_encoder(&mut self) -> Result<PointEncoder, InferError> {
+        self.encoder
+            .take()
+            .ok_or_else(|| InferError::run("encoder", "the encoder was already handed out"))
     }
 
     /// First decoder call for a batch: `prefixes` (B, L, d) from the encoder, `prompts`

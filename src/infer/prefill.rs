@@ -1,5 +1,6 @@
-//! Encoding and prefill: the per-job model work before a job can join the decode batch.
-//! The inference thread runs it for the jobs that fit the batch's room, as one call each.
+//! Prefill: the per-job model work before a job can join the decode batch. The inference
+//! thread runs it for the jobs that fit the batch's room, as one call; the submitting
+//! threads have already encoded their points.
 //!
 //! (A separate prefill thread with its own sessions was measured on the 2-core machine:
 //! 331–332 jobs/min at 32 clients against 338–345 without it. Both cores are already busy
@@ -17,7 +18,6 @@ use std::time::Instant;
 /// prefill cache is its own (jobs with the same mesh and prompt share a row).
 pub(super) struct Ready {
     pub(super) job: Job,
-    pub(super) prefix: Arc<Array2<f32>>,
     pub(super) logits: Array1<f32>,
     pub(super) row: usize,
 }
@@ -28,70 +28,20 @@ pub(super) struct Prepared {
     pub(super) cache: Arc<KvCache>,
 }
 
-/// Encoder output per job: the one the submitting thread computed, else each distinct
-/// point set encoded once here, sets of one size through the encoder together.
-fn encode(
-    model: &mut SkeletonModel,
-    metrics: &Metrics,
-    jobs: &[Job],
-) -> Result<Vec<Arc<Array2<f32>>>, InferError> {
-    if let Some(done) = jobs
-        .iter()
-        .map(|j| j.prefix.clone())
-        .collect::<Option<Vec<_>>>()
-    {
-        return Ok(done);
-    }
-    let mut sets: Vec<Arc<[[f32; 6]]>> = Vec::new();
-    let mut of_job = Vec::with_capacity(jobs.len());
-    for j in jobs {
-        let k = match sets.iter().position(|s| Arc::ptr_eq(s, &j.points)) {
-            Some(k) => k,
-            None => {
-                sets.push(j.points.clone());
-                sets.len() - 1
-            }
-        };
-        of_job.push(k);
-    }
-    let mut prefixes: Vec<Option<Arc<Array2<f32>>>> = vec![None; sets.len()];
-    let mut sizes: Vec<usize> = sets.iter().map(|s| s.len()).collect();
-    sizes.sort_unstable();
-    sizes.dedup();
-    for n in sizes {
-        let group: Vec<usize> = (0..sets.len()).filter(|&k| sets[k].len() == n).collect();
-        let mut pts = Array3::<f32>::zeros((group.len(), n, 6));
-        for (g, &k) in group.iter().enumerate() {
-            for (i, p) in sets[k].iter().enumerate() {
-                for (c, &v) in p.iter().enumerate() {
-                    pts[[g, i, c]] = v;
-                }
-            }
-        }
-        let t = Instant::now();
-        let out = model.encode(&pts)?;
-        Metrics::add_time(&metrics.encode_ns, t);
-        Metrics::add(&metrics.encode_calls, 1);
-        Metrics::add(&metrics.encode_rows, group.len() as u64);
-        for (g, &k) in group.iter().enumerate() {
-            prefixes[k] = Some(Arc::new(out.index_axis(Axis(0), g).to_owned()));
-        }
-    }
-    Ok(of_job
-        .into_iter()
-        .map(|k| prefixes[k].clone().expect("every set encoded"))
-        .collect())
-}
-
-/// Encodes and prefills `jobs` as one batch. On error the jobs come back with it.
+/// Prefills `jobs` (encoded by their submitters) as one batch. On error the jobs come
+/// back with it.
 pub(super) fn prepare(
     model: &mut SkeletonModel,
     metrics: &Metrics,
     jobs: Vec<Job>,
 ) -> Result<Prepared, (Vec<Job>, InferError)> {
-    let prefixes = match encode(model, metrics, &jobs) {
-        Ok(p) => p,
-        Err(e) => return Err((jobs, e)),
+    let Some(prefixes) = jobs
+        .iter()
+        .map(|j| j.prefix.clone())
+        .collect::<Option<Vec<_>>>()
+    else {
+        let e = InferError::run("prefill", "a job reached the inference thread unencoded");
+        return Err((jobs, e));
     };
     // A job's candidates share the mesh (one prefix) and the prompt, so their prefills
     // are the same: run each distinct row once and let the others copy it. Prefill is the
@@ -129,11 +79,9 @@ pub(super) fn prepare(
     };
     let ready = jobs
         .into_iter()
-        .zip(prefixes)
         .zip(of_row)
-        .map(|((job, prefix), row)| Ready {
+        .map(|(job, row)| Ready {
             job,
-            prefix,
             logits: logits.row(row).to_owned(),
             row,
         })

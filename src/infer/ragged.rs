@@ -165,18 +165,18 @@ impl RaggedKv {
             self.relayout(need_rows, cols)?;
         }
         let plane = self.plane();
+        let src_plane = src.capacity() * dh;
         for (i, tensor) in self.tensors.iter_mut().enumerate() {
-            let s = src.tensor(i);
+            let view = src.tensor(i);
+            let s = view.as_slice().expect("a cache tensor is contiguous");
             let (_, dst) = tensor.extract_tensor_mut();
             for (k, (&row, cols)) in rows.iter().zip(&real).enumerate() {
                 let r = live + k;
                 for hh in 0..h {
-                    let base = (r * h + hh) * plane;
+                    let (to, from) = ((r * h + hh) * plane, (row * h + hh) * src_plane);
                     for (j, &c) in cols.iter().enumerate() {
-                        let to = base + j * dh;
-                        for (e, slot) in dst[to..to + dh].iter_mut().enumerate() {
-                            *slot = s[[row, hh, c, e]];
-                        }
+                        dst[to + j * dh..to + (j + 1) * dh]
+                            .copy_from_slice(&s[from + c * dh..from + (c + 1) * dh]);
                     }
                 }
             }
