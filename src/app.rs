@@ -19,6 +19,7 @@ use crate::jobs::{
     BlobError, Blobs, Context, JobMetrics, JobStore, Notifier, StoreError, Webhooks,
 };
 use crate::mesh::Limits;
+use crate::predict::library::{Library, LibraryError};
 use crate::rig::skin::SkinConfig;
 use std::net::SocketAddr;
 use std::path::PathBuf;
@@ -39,6 +40,9 @@ pub struct ModelSetup {
     pub max_batch: usize,
     /// Use the ragged decode step when the model has one ([`BackendConfig::ragged`]).
     pub ragged: bool,
+    /// Skeleton library file whose entries join the model's candidates
+    /// ([`crate::predict::library`]); `None`: the model alone.
+    pub library: Option<PathBuf>,
 }
 
 /// What this process does: everything, only the HTTP API, or only the workers (with a
@@ -133,6 +137,8 @@ pub enum AppError {
     #[error("skeleton model: {0}")]
     Model(#[from] InferError),
     #[error(transparent)]
+    Library(#[from] LibraryError),
+    #[error(transparent)]
     Keys(#[from] KeysError),
     #[error(transparent)]
     Webhook(#[from] WebhookError),
@@ -149,6 +155,7 @@ impl AppError {
             AppError::Store(e) => e.code(),
             AppError::Blobs(e) => e.code(),
             AppError::Model(e) => e.code(),
+            AppError::Library(e) => e.code(),
             AppError::Keys(_) => "api_keys_file",
             AppError::Webhook(e) => e.code(),
             AppError::Metrics(_) => "metrics",
@@ -168,7 +175,7 @@ pub struct Application {
 
 /// The skeleton model's inference thread, and the learned skin model when the models
 /// folder has one (`skin/`; geometric weights otherwise).
-fn load_models(m: &ModelSetup) -> Result<(Backend, Option<SkinModel>), InferError> {
+fn load_models(m: &ModelSetup) -> Result<(Backend, Option<SkinModel>), AppError> {
     let rt = Runtime::init(m.ort_lib.as_deref())?;
     let session = SessionConfig {
         intra_threads: m.threads,
@@ -223,12 +230,16 @@ impl Application {
         let job_metrics = JobMetrics::new(&registry)?;
         let http_metrics = HttpMetrics::new(&registry)?;
         let runs_jobs = cfg.role != Role::Api;
-        let (backend, skin_model) = match (&cfg.model, runs_jobs) {
+        let (backend, skin_model, library) = match (&cfg.model, runs_jobs) {
             (Some(m), true) => {
                 let (b, s) = load_models(m)?;
-                (Some(b), s)
+                let lib = m.library.as_deref().map(Library::load).transpose()?;
+                if let Some(l) = &lib {
+                    info!(entries = l.entries.len(), "skeleton library loaded");
+                }
+                (Some(b), s, lib.map(Arc::new))
             }
-            _ => (None, None),
+            _ => (None, None, None),
         };
         if runs_jobs {
             info!(
@@ -267,6 +278,7 @@ impl Application {
             limits: cfg.limits,
             skin: SkinConfig::default(),
             skin_model,
+            library,
             max_samples: cfg.max_samples,
             max_bones: cfg.max_bones,
             cpu_slots: CpuSlots::new(match cfg.cpu_jobs {

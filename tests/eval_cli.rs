@@ -207,3 +207,120 @@ fn skeleton_only_eval_runs_the_model_on_every_mesh() {
         .iter()
         .all(|m| m["joints_pred"].as_u64().unwrap() > 0));
 }
+
+/// `rigserve library` writes a library from rigged files, and `eval --skeleton-only`
+/// borrows from it: a mesh whose sibling (same pack, same rig) is in the library gets the
+/// sibling's skeleton moved onto it, and a file being scored never lends its own, even
+/// when the library holds it.
+#[test]
+fn the_library_lends_a_siblings_skeleton_but_never_the_scored_files_own() {
+    let Some(dir) = common::shared_rigs() else {
+        return;
+    };
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    if !root.join(".onnxruntime/libonnxruntime.so.1.31.1").is_file() {
+        eprintln!("SKIPPED: .onnxruntime/ is absent (scripts/setup.sh fetches it)");
+        return;
+    }
+    let tmp = tempfile::tempdir().unwrap();
+    let (scored, all) = (tmp.path().join("scored"), tmp.path().join("all"));
+    let files = [
+        ("modular_men__Farmer.glb", "train"),
+        ("modular_men__Beach.glb", "train"),
+        ("cute_fish_pack__Piranha.glb", "train"),
+        ("modular_men__Worker.glb", "dev"),
+    ];
+    for d in [&scored, &all] {
+        std::fs::create_dir_all(d).unwrap();
+    }
+    let (mut m_scored, mut m_all) = (
+        String::from("file\tsplit\tcategory\n"),
+        String::from("file\tsplit\tcategory\n"),
+    );
+    for (f, split) in files {
+        let cat = if f.starts_with("cute_fish") {
+            "fish_snake_tail"
+        } else {
+            "humanoid"
+        };
+        for d in [&scored, &all] {
+            std::fs::copy(dir.join(f), d.join(f)).unwrap();
+        }
+        m_scored += &format!("{f}\t{split}\t{cat}\n");
+        m_all += &format!("{f}\tlib\t{cat}\n");
+    }
+    std::fs::write(scored.join("manifest.tsv"), m_scored).unwrap();
+    std::fs::write(all.join("manifest.tsv"), m_all).unwrap();
+
+    let bin = env!("CARGO_BIN_EXE_rigserve");
+    let lib = tmp.path().join("library.json");
+    let out = Command::new(bin)
+        .args(["library", "--split", "lib", "--dataset"])
+        .arg(&all)
+        .arg("--out")
+        .arg(&lib)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let written: Value = serde_json::from_slice(&std::fs::read(&lib).unwrap()).unwrap();
+    assert_eq!(written["entries"].as_array().unwrap().len(), 4);
+
+    let report = tmp.path().join("r.json");
+    let out = Command::new(bin)
+        .current_dir(root)
+        .args([
+            "eval",
+            "--skeleton-only",
+            "--split",
+            "dev",
+            "--samples",
+            "2",
+        ])
+        .args(["--models", "tests/fixtures/tiny_skeleton", "--library"])
+        .arg(&lib)
+        .arg("--dataset")
+        .arg(&scored)
+        .arg("--out")
+        .arg(&report)
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{stderr}");
+    assert!(stderr.contains("left out 1 entries"), "{stderr}");
+    let r: Value = serde_json::from_slice(&std::fs::read(&report).unwrap()).unwrap();
+    let m = &r["models"][0];
+    assert_eq!(m["file"], "modular_men__Worker.glb");
+    let cands = m["candidates"].as_array().unwrap();
+    let chosen = &cands[m["chosen"].as_u64().unwrap() as usize];
+    assert_eq!(chosen["origin"]["kind"], "library", "{chosen}");
+    let name = chosen["origin"]["name"].as_str().unwrap();
+    assert!(
+        name.starts_with("modular_men__") && name != "modular_men__Worker.glb",
+        "{name}"
+    );
+    // The same rig moved onto a sibling mesh: close to the artist's own.
+    let j2j = m["skeleton"]["cd_j2j"].as_f64().unwrap();
+    assert!(j2j < 0.03, "{j2j}");
+
+    // A folder with nothing readable makes no library.
+    let empty = tmp.path().join("empty");
+    std::fs::create_dir_all(&empty).unwrap();
+    std::fs::write(
+        empty.join("manifest.tsv"),
+        "file\tsplit\tcategory\nnope.glb\tlib\thumanoid\n",
+    )
+    .unwrap();
+    let out = Command::new(bin)
+        .args(["library", "--split", "lib", "--dataset"])
+        .arg(&empty)
+        .arg("--out")
+        .arg(tmp.path().join("none.json"))
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("no rig of split lib"));
+}

@@ -396,6 +396,7 @@ fn skeleton(a: SkeletonArgs) -> anyhow::Result<()> {
     let cfg = PredictConfig {
         samples: a.samples,
         seed: a.seed,
+        library: a.model.load_library()?,
         ..PredictConfig::default()
     };
     let mut runs = Vec::new();

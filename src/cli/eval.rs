@@ -23,6 +23,12 @@ pub struct EvalArgs {
     pub baseline: bool,
     #[arg(long, default_value = "train")]
     pub train_split: String,
+    /// Score the skeleton of the most similar `--train-split` rig, moved onto each mesh.
+    #[arg(long, conflicts_with_all = ["baseline", "skeleton_only", "skin_on_gt"])]
+    pub retrieval: bool,
+    /// With --retrieval: only stretch the borrowed skeleton onto the box, no warp.
+    #[arg(long)]
+    pub no_warp: bool,
     /// Run the shipped skeleton model on every mesh and score its skeletons.
     #[arg(long, conflicts_with = "skin_on_gt")]
     pub skeleton_only: bool,
@@ -32,6 +38,10 @@ pub struct EvalArgs {
     pub skin_on_gt: bool,
     #[command(flatten)]
     pub skin: SkinArgs,
+    /// With --skeleton-only: rigs of this split of the data set form the library whose
+    /// skeletons join the model's candidates (never the split scored).
+    #[arg(long)]
+    pub library_split: Option<String>,
     /// Do not pass the manifest's category to the model as a hint.
     #[arg(long)]
     pub no_category_hint: bool,
@@ -51,6 +61,14 @@ pub fn run(a: EvalArgs) -> anyhow::Result<()> {
     let split = a.split.as_deref();
     let report = if let Some(pred) = &a.pred {
         rigserve::eval::eval_pred(&a.dataset, split, pred, &limits)?
+    } else if a.retrieval {
+        rigserve::eval::retrieval::eval_retrieval(
+            &a.dataset,
+            split,
+            &a.train_split,
+            !a.no_warp,
+            &limits,
+        )?
     } else if a.baseline {
         rigserve::eval::eval_baseline(&a.dataset, split, &a.train_split, &limits)?
     } else if a.skeleton_only {
@@ -59,7 +77,36 @@ pub fn run(a: EvalArgs) -> anyhow::Result<()> {
             kv_cache: true,
             ragged: true,
         })?;
-        let cfg = a.decode.predict_config(None);
+        let mut cfg = a.decode.predict_config(None);
+        let lib = match &a.library_split {
+            Some(ls) => {
+                anyhow::ensure!(
+                    Some(ls.as_str()) != split,
+                    "the library must not hold the split scored"
+                );
+                let lib = rigserve::eval::retrieval::build_library(&a.dataset, ls, &limits)?;
+                eprintln!("skeleton library: {} rigs of split {ls}", lib.entries.len());
+                Some(lib)
+            }
+            None => a.model.load_library()?.map(|l| (*l).clone()),
+        };
+        // A mesh must never be rigged from its own entry: the scored files leave the
+        // library first.
+        if let Some(lib) = lib {
+            let scored: std::collections::HashSet<String> =
+                rigserve::eval::entries_in(&a.dataset, split)?
+                    .into_iter()
+                    .map(|e| e.file)
+                    .collect();
+            let kept = lib.without(&scored);
+            if kept.entries.len() < lib.entries.len() {
+                eprintln!(
+                    "skeleton library: left out {} entries that are files being scored",
+                    lib.entries.len() - kept.entries.len()
+                );
+            }
+            cfg.library = Some(std::sync::Arc::new(kept));
+        }
         rigserve::eval::eval_model_skeleton(
             &a.dataset,
             split,
@@ -102,5 +149,22 @@ pub fn run(a: EvalArgs) -> anyhow::Result<()> {
         o.skin.recall,
         o.skin.deformation
     );
+    let best: Vec<f32> = report
+        .models
+        .iter()
+        .filter_map(|m| {
+            m.candidates
+                .iter()
+                .filter_map(|c| c.cd_j2j)
+                .reduce(f32::min)
+        })
+        .collect();
+    if !best.is_empty() {
+        eprintln!(
+            "best candidate of each mesh, had the choice been perfect: CD-J2J {:.4} over {} meshes",
+            best.iter().sum::<f32>() / best.len() as f32,
+            best.len()
+        );
+    }
     Ok(())
 }

@@ -7,6 +7,7 @@ mod inspect;
 mod rig;
 mod serve;
 
+use anyhow::Context;
 use clap::{Parser, Subcommand};
 use rigserve::mesh::Limits;
 use std::path::PathBuf;
@@ -68,6 +69,24 @@ pub enum Command {
     /// Measures model throughput and latency.
     #[command(subcommand)]
     Bench(bench::BenchCommand),
+    /// Writes a skeleton library from rigged files: meshes like one of them borrow its
+    /// skeleton, moved onto them (see `--library`).
+    Library(LibraryArgs),
+}
+
+#[derive(clap::Args, Debug)]
+pub struct LibraryArgs {
+    /// Folder holding `manifest.tsv` and the rigged files it lists.
+    #[arg(long)]
+    pub dataset: PathBuf,
+    /// Only the rows of this split (e.g. `train`).
+    #[arg(long)]
+    pub split: String,
+    /// Where to write the library (e.g. models/library.json).
+    #[arg(long)]
+    pub out: PathBuf,
+    #[command(flatten)]
+    pub limits: LimitArgs,
 }
 
 #[derive(clap::Args, Debug)]
@@ -144,5 +163,19 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Serve(a) => serve::run(a),
         Command::Bench(c) => bench::run(c),
         Command::Eval(a) => eval::run(a),
+        Command::Library(a) => {
+            let lib =
+                rigserve::eval::retrieval::build_library(&a.dataset, &a.split, &a.limits.limits())?;
+            anyhow::ensure!(
+                !lib.entries.is_empty(),
+                "no rig of split {} in {} could be read",
+                a.split,
+                a.dataset.display()
+            );
+            lib.save(&a.out)
+                .with_context(|| format!("writing {}", a.out.display()))?;
+            eprintln!("{}: {} rigs", a.out.display(), lib.entries.len());
+            Ok(())
+        }
     }
 }

@@ -8,11 +8,13 @@ use rigserve::infer::{
     SkinModel, Variant,
 };
 use rigserve::mesh;
-use rigserve::predict::{predict_skeleton, PredictConfig};
+use rigserve::predict::library::Library;
+use rigserve::predict::{predict_skeleton, Origin, PredictConfig};
 use rigserve::rig::groundtruth::extract;
 use rigserve::rig::skin::{skin_with_timed, CandidateScorer, SkinConfig};
 use rigserve::rig::Skeleton;
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
 
 /// Where the model and ONNX Runtime come from (shared by `rig` and `bench`).
 #[derive(clap::Args, Debug, Clone)]
@@ -35,6 +37,13 @@ pub struct ModelArgs {
     /// has the ragged `decoder_step.onnx` (the slower layout; for comparison).
     #[arg(long, env = "RIGSERVE_DENSE_DECODE")]
     pub dense_decode: bool,
+    /// Skeleton library (`rigserve library` writes one) whose most similar entry, moved
+    /// onto the mesh, joins the candidates [default: library.json in --models when there].
+    #[arg(long, env = "RIGSERVE_LIBRARY", conflicts_with = "no_library")]
+    pub library: Option<PathBuf>,
+    /// Decode with the model alone, even when the models folder has a library.
+    #[arg(long)]
+    pub no_library: bool,
 }
 
 impl ModelArgs {
@@ -50,6 +59,31 @@ impl ModelArgs {
             },
         )
         .map_err(|e| anyhow::anyhow!("{e} [{}]", e.code()))
+    }
+
+    /// The library file to use, if any: `--library`, else the models folder's own.
+    pub fn library_path(&self) -> Option<PathBuf> {
+        if self.no_library {
+            return None;
+        }
+        self.library.clone().or_else(|| {
+            let p = rigserve::predict::library::default_path(&self.models);
+            p.is_file().then_some(p)
+        })
+    }
+
+    pub fn load_library(&self) -> anyhow::Result<Option<Arc<Library>>> {
+        self.library_path()
+            .map(|p| {
+                let lib = Library::load(&p).map_err(|e| anyhow::anyhow!("{e} [{}]", e.code()))?;
+                eprintln!(
+                    "skeleton library: {} ({} rigs)",
+                    p.display(),
+                    lib.entries.len()
+                );
+                Ok(Arc::new(lib))
+            })
+            .transpose()
     }
 
     pub fn backend(&self, mut config: BackendConfig) -> anyhow::Result<Backend> {
@@ -79,6 +113,12 @@ pub struct DecodeArgs {
     /// Nucleus sampling threshold (1: off).
     #[arg(long, default_value_t = 0.95)]
     pub top_p: f32,
+    /// Library entries that join the candidates.
+    #[arg(long, default_value_t = rigserve::predict::DEFAULT_LIBRARY_CANDIDATES)]
+    pub library_candidates: usize,
+    /// Shape distance under which the nearest library entry is taken over the model.
+    #[arg(long, default_value_t = rigserve::predict::DEFAULT_LIBRARY_TRUST)]
+    pub library_trust: f32,
 }
 
 impl DecodeArgs {
@@ -94,6 +134,8 @@ impl DecodeArgs {
             },
             max_bones: self.max_bones,
             category,
+            library_candidates: self.library_candidates,
+            library_trust: self.library_trust,
             ..PredictConfig::default()
         }
     }
@@ -224,18 +266,22 @@ fn predict(a: &RigArgs, mesh: &mesh::Mesh) -> anyhow::Result<Skeleton> {
         kv_cache: true,
         ragged: true,
     })?;
-    let cfg = a.decode.predict_config(a.category.clone());
+    let mut cfg = a.decode.predict_config(a.category.clone());
+    cfg.library = a.model.load_library()?;
     let pred = predict_skeleton(&backend, mesh, &cfg, keep.as_ref())
         .map_err(|e| anyhow::anyhow!("{e} [{}]", e.code()))?;
     let c = &pred.candidates[pred.chosen];
     let s = c.score.expect("the chosen candidate is scored");
     eprintln!(
-        "{}: {} bones (candidate {} of {}, seed {}, cost {:.3}: coverage {:.3}, outside {:.3}, bbox {:.3})",
+        "{}: {} bones (candidate {} of {}, {}, cost {:.3}: coverage {:.3}, outside {:.3}, bbox {:.3})",
         a.input.display(),
         pred.skeleton.len(),
         pred.chosen,
         pred.candidates.len(),
-        c.seed,
+        match &c.origin {
+            Origin::Model { seed } => format!("model seed {seed}"),
+            Origin::Library { name, shape } => format!("library {name}, shape distance {shape:.3}"),
+        },
         s.cost,
         s.coverage,
         s.outside,

@@ -135,6 +135,7 @@ pub fn run(a: ServeArgs) -> anyhow::Result<()> {
         threads: a.model.threads,
         max_batch: a.max_batch,
         ragged: !a.model.dense_decode,
+        library: a.model.library_path(),
     });
     cfg.limits = a.limits.limits();
     cfg.sync_max_bytes = a.sync_max_bytes;

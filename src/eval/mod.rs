@@ -2,6 +2,7 @@
 //! is judged by, computed by the same code whichever tool produced the rig.
 
 pub mod baseline;
+pub mod retrieval;
 pub mod skin;
 
 use crate::mesh::{self, Limits};
@@ -83,6 +84,21 @@ pub struct ModelReport {
     pub joints_pred: usize,
     pub skeleton: Option<SkeletonScores>,
     pub skin: Option<SkinScores>,
+    /// `--skeleton-only`: each decoded candidate's CD-J2J against the artist's skeleton
+    /// (null for a candidate without a skeleton), in decoding order, and which one the
+    /// predictor chose: how much a better choice among them could gain.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub candidates: Vec<CandidateReport>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub chosen: Option<usize>,
+}
+
+/// A candidate as the predictor saw it, and how it scores against the artist's skeleton.
+#[derive(Clone, Debug, Serialize)]
+pub struct CandidateReport {
+    #[serde(flatten)]
+    pub candidate: crate::predict::Candidate,
+    pub cd_j2j: Option<f32>,
 }
 
 impl ModelReport {
@@ -97,6 +113,8 @@ impl ModelReport {
             joints_pred: 0,
             skeleton: None,
             skin: None,
+            candidates: Vec::new(),
+            chosen: None,
         }
     }
 }
@@ -339,13 +357,24 @@ pub fn eval_model_skeleton(
         };
         match crate::predict::predict_skeleton(backend, mesh, &cfg, None) {
             Ok(pred) => {
+                let frame = Frame::from_points(&mesh.positions);
                 report.joints_pred = pred.skeleton.len();
                 report.valid = pred.skeleton.validate(cfg.max_bones).is_ok();
-                report.skeleton = Some(score_skeleton(
-                    &pred.skeleton,
-                    &gt.skeleton,
-                    &Frame::from_points(&mesh.positions),
-                ));
+                report.skeleton = Some(score_skeleton(&pred.skeleton, &gt.skeleton, &frame));
+                report.chosen = Some(pred.chosen);
+                report.candidates = pred
+                    .candidates
+                    .iter()
+                    .zip(&pred.unit_skeletons)
+                    .map(|(c, s)| CandidateReport {
+                        candidate: c.clone(),
+                        cd_j2j: s.as_ref().and_then(|s| {
+                            let mut s = s.clone();
+                            s.map_points(|p| pred.normalization.invert(p));
+                            crate::rig::metrics::cd_j2j(&s, &gt.skeleton, &frame)
+                        }),
+                    })
+                    .collect();
             }
             Err(e) => report.error = Some(err(e.code(), e)),
         }

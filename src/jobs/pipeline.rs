@@ -9,6 +9,7 @@ use crate::export::{bone_tree, export_glb, parse_bone_tree, ExportOptions};
 use crate::infer::Backend;
 use crate::infer::SkinModel;
 use crate::mesh::{self, Limits};
+use crate::predict::library::Library;
 use crate::predict::{mesh_samples, predict_from_samples, PredictConfig, TemplateMode};
 use crate::rig::groundtruth;
 use crate::rig::skin::{skin_with, CandidateScorer, SkinConfig};
@@ -23,6 +24,8 @@ pub struct Engine {
     pub skin: SkinConfig,
     /// The learned skin model; `None`: geometric weights.
     pub skin_model: Option<SkinModel>,
+    /// Rigged meshes whose skeletons join the model's candidates.
+    pub library: Option<Arc<Library>>,
     /// Candidates per job at most (`samples` is clamped to it).
     pub max_samples: usize,
     /// Bones per skeleton at most (`max_bones` is clamped to it).
@@ -164,6 +167,7 @@ fn predict_config(
             TemplateChoice::None => TemplateMode::Forbid,
         },
         canceled: Some(Arc::new(move || progress.canceled())),
+        library: engine.library.clone(),
         ..PredictConfig::default()
     };
     cfg.sampling.seed = options.seed;

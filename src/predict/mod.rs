@@ -5,6 +5,7 @@
 //! A partial skeleton (bones to keep) becomes the prompt: it is normalized, tokenized, and
 //! decoding continues after it, so the kept bones come first in the result, unchanged.
 
+pub mod library;
 pub mod score;
 
 use crate::infer::{Backend, InferError, SamplingParams, SkeletonRequest};
@@ -14,12 +15,21 @@ use crate::rig::tokenizer::{
     class_token, detokenize, tokenize_with_order, TokenizeError, BOS, EOS, MIXAMO_BODY,
 };
 use crate::rig::Skeleton;
+use glam::Vec3;
+use library::{shape_of_samples, BoxFrame, Library};
 use score::{SkeletonScore, SurfaceModel};
 use std::collections::HashSet;
 use std::sync::Arc;
 
 /// Surface samples the model is fed (validation in training uses this many).
 pub const MODEL_POINTS: usize = 2048;
+
+/// See [`PredictConfig::library_candidates`].
+pub const DEFAULT_LIBRARY_CANDIDATES: usize = 1;
+/// See [`PredictConfig::library_trust`]. Surfaces 0.2 apart in box coordinates are
+/// different shapes (a dragon and a bat, a mech and another mech's armour); nearer ones
+/// were mostly the same kind of character in the same artist's style.
+pub const DEFAULT_LIBRARY_TRUST: f32 = 0.2;
 
 /// `template` of a job: whether the Mixamo body template is left to the model, forced
 /// (the prompt opens the block), or refused by the grammar.
@@ -50,6 +60,13 @@ pub struct PredictConfig {
     /// Category hint for the class token (`humanoid`, `quadruped`, …); unknown or `None`
     /// gives `<cls:none>`.
     pub category: Option<String>,
+    /// Rigged meshes whose skeletons, moved onto this mesh, join the candidates.
+    pub library: Option<Arc<Library>>,
+    /// How many of the library's most similar entries join (0: none).
+    pub library_candidates: usize,
+    /// Shape distance (box coordinates) under which the nearest library entry is taken
+    /// over the model's candidates: the mesh is then a close relative of a rigged one.
+    pub library_trust: f32,
 }
 
 impl Default for PredictConfig {
@@ -69,6 +86,9 @@ impl Default for PredictConfig {
             template: TemplateMode::Auto,
             canceled: None,
             category: None,
+            library: None,
+            library_candidates: DEFAULT_LIBRARY_CANDIDATES,
+            library_trust: DEFAULT_LIBRARY_TRUST,
         }
     }
 }
@@ -106,6 +126,8 @@ pub struct MeshSamples {
     /// `x y z nx ny nz` in the unit frame, shared by every candidate's request.
     pub points: Arc<[[f32; 6]]>,
     pub surface: SurfaceModel,
+    /// Bounding box of the mesh in the unit frame.
+    pub bounds: (Vec3, Vec3),
 }
 
 /// Normalizes `mesh` and samples `n` surface points with `seed`: the same steps, in the
@@ -132,6 +154,7 @@ pub fn mesh_samples(mesh: &Mesh, n: usize, seed: u64) -> Result<MeshSamples, Pre
         normalization: norm,
         points: rows.into(),
         surface,
+        bounds: unit.bounds(),
     })
 }
 
@@ -173,10 +196,20 @@ pub fn keep_prompt(
     Ok(KeepPrompt { tokens, bones })
 }
 
-/// One decoded candidate.
+/// Where a candidate came from.
+#[derive(Clone, Debug, PartialEq, serde::Serialize)]
+#[serde(tag = "kind", rename_all = "snake_case")]
+pub enum Origin {
+    /// Sampled from the skeleton model with this seed.
+    Model { seed: u64 },
+    /// A library entry's skeleton moved onto the mesh; `shape` is the surfaces' distance.
+    Library { name: String, shape: f32 },
+}
+
+/// One candidate skeleton.
 #[derive(Clone, Debug, serde::Serialize)]
 pub struct Candidate {
-    pub seed: u64,
+    pub origin: Origin,
     pub tokens: Vec<u32>,
     pub bones: usize,
     pub score: Option<SkeletonScore>,
@@ -191,6 +224,8 @@ pub struct Prediction {
     /// Index of the chosen candidate.
     pub chosen: usize,
     pub candidates: Vec<Candidate>,
+    /// Each candidate's skeleton in the unit frame (None where it has none).
+    pub unit_skeletons: Vec<Option<Skeleton>>,
     pub normalization: Normalization,
 }
 
@@ -223,6 +258,91 @@ pub fn predict_from_samples(
         }
         None => vec![BOS, class_token(cfg.category.as_deref())],
     };
+    // The library goes first: when its nearest entry is trusted, nothing the model could
+    // decode would be chosen over it, so the model is not run at all.
+    let borrowed = match &cfg.library {
+        Some(lib) if kept.is_none() && cfg.template == TemplateMode::Auto => library_candidates(
+            lib,
+            samples,
+            cfg.category.as_deref(),
+            cfg.library_candidates,
+            cfg.max_bones,
+        ),
+        _ => Vec::new(),
+    };
+    let trusted = borrowed
+        .first()
+        .is_some_and(|(_, shape, _)| *shape <= cfg.library_trust);
+    let mut candidates = Vec::new();
+    let mut skeletons = Vec::new();
+    if !trusted {
+        decode_candidates(
+            backend,
+            samples,
+            cfg,
+            prompt,
+            &mut candidates,
+            &mut skeletons,
+        )?;
+    }
+    for (name, shape, skel) in borrowed {
+        candidates.push(Candidate {
+            origin: Origin::Library { name, shape },
+            tokens: Vec::new(),
+            bones: skel.len(),
+            score: Some(samples.surface.score(&skel)),
+            error: None,
+        });
+        skeletons.push(Some(skel));
+    }
+    // Library candidates come nearest first.
+    let trusted = candidates.iter().position(
+        |c| matches!(c.origin, Origin::Library { shape, .. } if shape <= cfg.library_trust),
+    );
+    let chosen = trusted
+        .or_else(|| {
+            (0..candidates.len())
+                .filter(|&k| candidates[k].score.is_some())
+                .min_by(|&a, &b| {
+                    let cost = |k: usize| candidates[k].score.unwrap().cost;
+                    cost(a).total_cmp(&cost(b)).then(a.cmp(&b))
+                })
+        })
+        .ok_or_else(|| {
+            PredictError::NoCandidate(
+                candidates
+                    .iter()
+                    .filter_map(|c| c.error.clone())
+                    .next()
+                    .unwrap_or_default(),
+            )
+        })?;
+    let mut skeleton = skeletons[chosen].clone().expect("chosen has a skeleton");
+    skeleton.map_points(|p| norm.invert(p));
+    if let Some(k) = &kept {
+        restore_kept(&mut skeleton, &k.bones);
+    }
+    if skeleton.category.is_none() {
+        skeleton.category = cfg.category.clone();
+    }
+    Ok(Prediction {
+        skeleton,
+        chosen,
+        candidates,
+        unit_skeletons: skeletons,
+        normalization: norm,
+    })
+}
+
+/// Decodes the model's best-of-N candidates for `prompt`, in seed order.
+fn decode_candidates(
+    backend: &Backend,
+    samples: &MeshSamples,
+    cfg: &PredictConfig,
+    prompt: Vec<u32>,
+    candidates: &mut Vec<Candidate>,
+    skeletons: &mut Vec<Option<Skeleton>>,
+) -> Result<(), PredictError> {
     let n = if cfg.sampling.is_greedy() {
         1
     } else {
@@ -245,8 +365,6 @@ pub fn predict_from_samples(
         })
         .collect();
     let pending = backend.submit_many(reqs)?;
-    let mut candidates = Vec::with_capacity(n);
-    let mut skeletons = Vec::with_capacity(n);
     for (p, &seed) in pending.into_iter().zip(&seeds) {
         let waited = match &cfg.canceled {
             Some(c) => p.wait_unless(&**c),
@@ -264,7 +382,7 @@ pub fn predict_from_samples(
         };
         let score = skel.as_ref().map(|s| samples.surface.score(s));
         candidates.push(Candidate {
-            seed,
+            origin: Origin::Model { seed },
             bones: skel.as_ref().map_or(0, Skeleton::len),
             tokens,
             score,
@@ -272,38 +390,39 @@ pub fn predict_from_samples(
         });
         skeletons.push(skel);
     }
-    let chosen = (0..n)
-        .filter(|&k| candidates[k].score.is_some())
-        .min_by(|&a, &b| {
-            let (ca, cb) = (
-                candidates[a].score.unwrap().cost,
-                candidates[b].score.unwrap().cost,
-            );
-            ca.total_cmp(&cb).then(a.cmp(&b))
+    Ok(())
+}
+
+/// The `k` library entries most like the mesh (of its category when hinted), their
+/// skeletons moved onto it, in the unit frame; entries over the bone cap are skipped.
+fn library_candidates(
+    lib: &Library,
+    samples: &MeshSamples,
+    category: Option<&str>,
+    k: usize,
+    max_bones: usize,
+) -> Vec<(String, f32, Skeleton)> {
+    if k == 0 {
+        return Vec::new();
+    }
+    let frame = BoxFrame::from_bounds(samples.bounds.0, samples.bounds.1);
+    let unit: Vec<Vec3> = samples
+        .points
+        .iter()
+        .map(|r| Vec3::new(r[0], r[1], r[2]))
+        .collect();
+    let shape = shape_of_samples(&unit, &frame);
+    lib.ranked(&shape, frame.proportions(), category)
+        .into_iter()
+        .filter(|&(i, _)| lib.entries[i].bones() <= max_bones)
+        .take(k)
+        .map(|(i, d)| {
+            let e = &lib.entries[i];
+            let mut s = e.fit(&shape, true);
+            s.map_points(|q| frame.invert(q));
+            (e.name.clone(), d, s)
         })
-        .ok_or_else(|| {
-            PredictError::NoCandidate(
-                candidates
-                    .iter()
-                    .filter_map(|c| c.error.clone())
-                    .next()
-                    .unwrap_or_default(),
-            )
-        })?;
-    let mut skeleton = skeletons[chosen].take().expect("chosen has a skeleton");
-    skeleton.map_points(|p| norm.invert(p));
-    if let Some(k) = &kept {
-        restore_kept(&mut skeleton, &k.bones);
-    }
-    if skeleton.category.is_none() {
-        skeleton.category = cfg.category.clone();
-    }
-    Ok(Prediction {
-        skeleton,
-        chosen,
-        candidates,
-        normalization: norm,
-    })
+        .collect()
 }
 
 /// Puts the kept bones back exactly as given (the decoded ones went through quantization)

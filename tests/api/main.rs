@@ -80,6 +80,97 @@ async fn a_mesh_is_rigged_end_to_end() {
     app.stop().await;
 }
 
+/// A library holding a rig of this very figure: the job borrows it (the artist's bone
+/// names come back), unless the job asks for the Mixamo template; a broken library file
+/// stops the server at start-up with its code.
+#[tokio::test]
+async fn a_library_rig_of_a_close_relative_is_borrowed() {
+    use rigserve::predict::library::{Entry, Library};
+    use rigserve::rig::{Bone, Skeleton};
+    let asset = rigserve::mesh::load(&figure_obj(), &Default::default()).unwrap();
+    let mut skel = Skeleton {
+        bones: vec![
+            Bone::new(
+                "lib_hips",
+                None,
+                glam::Vec3::new(0.0, 0.95, 0.0),
+                glam::Vec3::ZERO,
+            ),
+            Bone::new(
+                "lib_head",
+                Some(0),
+                glam::Vec3::new(0.0, 1.6, 0.0),
+                glam::Vec3::ZERO,
+            ),
+            Bone::new(
+                "lib_arm_l",
+                Some(0),
+                glam::Vec3::new(-0.6, 1.4, 0.0),
+                glam::Vec3::ZERO,
+            ),
+            Bone::new(
+                "lib_arm_r",
+                Some(0),
+                glam::Vec3::new(0.6, 1.4, 0.0),
+                glam::Vec3::ZERO,
+            ),
+        ],
+        ..Skeleton::default()
+    };
+    skel.infer_tails();
+    let dir = tempfile::tempdir().unwrap();
+    let file = dir.path().join("library.json");
+    Library::new(vec![Entry::new("figure", "humanoid", &asset.mesh, &skel)])
+        .save(&file)
+        .unwrap();
+    let lib = file.clone();
+    let app = spawn_app(move |c| c.model.as_mut().unwrap().library = Some(lib)).await;
+    let names = |tree: &Value| -> Vec<String> {
+        tree["bones"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|b| b["name"].as_str().unwrap().to_string())
+            .collect()
+    };
+    let job = app.submit_figure("?category=humanoid").await;
+    let done = app.wait_end(&id_of(&job), JOB_TIMEOUT).await;
+    assert_eq!(done["status"], "succeeded", "{done}");
+    let tree: Value = app
+        .get(done["result"]["skeleton"].as_str().unwrap())
+        .await
+        .json()
+        .await
+        .unwrap();
+    let got = names(&tree);
+    assert_eq!(got.len(), 4, "{got:?}");
+    assert!(got.iter().all(|n| n.starts_with("lib_")), "{got:?}");
+    // template=mixamo leaves the choice to the model's Mixamo body.
+    let job = app
+        .submit_figure("?category=humanoid&template=mixamo")
+        .await;
+    let done = app.wait_end(&id_of(&job), JOB_TIMEOUT).await;
+    assert_eq!(done["status"], "succeeded", "{done}");
+    let tree: Value = app
+        .get(done["result"]["skeleton"].as_str().unwrap())
+        .await
+        .json()
+        .await
+        .unwrap();
+    assert!(names(&tree).iter().all(|n| !n.starts_with("lib_")));
+    app.stop().await;
+
+    std::fs::write(&file, b"{\"version\": 1, \"entries\": 7}").unwrap();
+    let data = tempfile::tempdir().unwrap();
+    let mut cfg = test_config(data.path());
+    cfg.model.as_mut().unwrap().library = Some(file);
+    let err = rigserve::app::Application::build(cfg)
+        .await
+        .err()
+        .expect("refused");
+    assert_eq!(err.code(), "library_malformed", "{err}");
+}
+
 #[tokio::test]
 async fn multipart_with_options_and_skin_only_skeleton() {
     let app = spawn_app(|_| {}).await;
