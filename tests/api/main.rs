@@ -145,19 +145,21 @@ async fn a_library_rig_of_a_close_relative_is_borrowed() {
     let got = names(&tree);
     assert_eq!(got.len(), 4, "{got:?}");
     assert!(got.iter().all(|n| n.starts_with("lib_")), "{got:?}");
-    // template=mixamo leaves the choice to the model's Mixamo body.
-    let job = app
-        .submit_figure("?category=humanoid&template=mixamo")
-        .await;
-    let done = app.wait_end(&id_of(&job), JOB_TIMEOUT).await;
-    assert_eq!(done["status"], "succeeded", "{done}");
-    let tree: Value = app
-        .get(done["result"]["skeleton"].as_str().unwrap())
-        .await
-        .json()
-        .await
-        .unwrap();
-    assert!(names(&tree).iter().all(|n| !n.starts_with("lib_")));
+    // template=mixamo or none leaves the skeleton to the model.
+    for t in ["mixamo", "none"] {
+        let job = app
+            .submit_figure(&format!("?category=humanoid&template={t}"))
+            .await;
+        let done = app.wait_end(&id_of(&job), JOB_TIMEOUT).await;
+        assert_eq!(done["status"], "succeeded", "{done}");
+        let tree: Value = app
+            .get(done["result"]["skeleton"].as_str().unwrap())
+            .await
+            .json()
+            .await
+            .unwrap();
+        assert!(names(&tree).iter().all(|n| !n.starts_with("lib_")), "{t}");
+    }
     app.stop().await;
 
     std::fs::write(&file, b"{\"version\": 1, \"entries\": 7}").unwrap();
