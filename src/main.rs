@@ -27,9 +27,26 @@ fn keep_freed_memory() {
 #[cfg(not(all(target_os = "linux", target_env = "gnu")))]
 fn keep_freed_memory() {}
 
+/// A command whose output is piped into `head` ends quietly when the reader goes away,
+/// as other command-line tools do, instead of panicking in `println!` on the broken pipe.
+/// Not for `serve`: there a client that hangs up must not end the process.
+#[cfg(unix)]
+fn die_quietly_on_broken_pipe() {
+    // SAFETY: restores the default disposition before any thread starts.
+    unsafe {
+        libc::signal(libc::SIGPIPE, libc::SIG_DFL);
+    }
+}
+
+#[cfg(not(unix))]
+fn die_quietly_on_broken_pipe() {}
+
 fn main() -> std::process::ExitCode {
     keep_freed_memory();
     let args = cli::Cli::parse();
+    if !matches!(args.command, cli::Command::Serve(_)) {
+        die_quietly_on_broken_pipe();
+    }
     match cli::run(args) {
         Ok(()) => std::process::ExitCode::SUCCESS,
         Err(e) => {

@@ -148,7 +148,10 @@ impl Entry {
             }));
             let field = |j: Vec3| displacement(j, &pairs, sigma);
             s.map_points(|j| j + field(j));
-            src = src.iter().map(|&p| p + field(p)).collect();
+            // The samples only guide the next, narrower scale.
+            if sigma != WARP_SCALES[WARP_SCALES.len() - 1] {
+                src = src.iter().map(|&p| p + field(p)).collect();
+            }
         }
         s
     }
@@ -159,9 +162,13 @@ fn displacement(at: Vec3, pairs: &[(Vec3, Vec3)], sigma: f32) -> Vec3 {
     let inv = 1.0 / (2.0 * sigma * sigma);
     let (mut sum, mut w) = (Vec3::ZERO, 0.0f32);
     for &(p, d) in pairs {
-        let k = (-(p - at).length_squared() * inv).exp();
-        sum += d * k;
-        w += k;
+        let e = (p - at).length_squared() * inv;
+        // exp(-30) is 1e-13 of a pair at the point itself: not worth an exp.
+        if e < 30.0 {
+            let k = (-e).exp();
+            sum += d * k;
+            w += k;
+        }
     }
     if w > 1e-12 {
         sum / w
@@ -171,10 +178,14 @@ fn displacement(at: Vec3, pairs: &[(Vec3, Vec3)], sigma: f32) -> Vec3 {
 }
 
 fn nearest(p: Vec3, set: &[Vec3]) -> Vec3 {
-    set.iter()
-        .copied()
-        .min_by(|a, b| a.distance_squared(p).total_cmp(&b.distance_squared(p)))
-        .unwrap_or(p)
+    let mut best = (f32::INFINITY, p);
+    for &q in set {
+        let d = q.distance_squared(p);
+        if d < best.0 {
+            best = (d, q);
+        }
+    }
+    best.1
 }
 
 fn directed(a: &[Vec3], b: &[Vec3]) -> f32 {
