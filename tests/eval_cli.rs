@@ -156,19 +156,25 @@ fn the_category_medoid_baseline_scores_every_dev_mesh() {
     assert!(j2j > 0.01 && j2j < 0.5, "{j2j}");
 }
 
+/// ../shared/rigs and the repository root, when both the rigs and ONNX Runtime are there.
+fn rigs_and_runtime() -> Option<(std::path::PathBuf, &'static Path)> {
+    let dir = common::shared_rigs()?;
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    if !root.join(".onnxruntime/libonnxruntime.so.1.31.1").is_file() {
+        eprintln!("SKIPPED: .onnxruntime/ is absent (scripts/setup.sh fetches it)");
+        return None;
+    }
+    Some((dir, root))
+}
+
 /// The model-driven mode, with the tiny random-weight fixture: every mesh must get a
 /// valid skeleton and finite scores (the fixture's skeletons are nonsense; the plumbing
 /// is what is under test).
 #[test]
 fn skeleton_only_eval_runs_the_model_on_every_mesh() {
-    let Some(dir) = common::shared_rigs() else {
+    let Some((dir, _)) = rigs_and_runtime() else {
         return;
     };
-    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
-    if !root.join(".onnxruntime/libonnxruntime.so.1.31.1").is_file() {
-        eprintln!("SKIPPED: .onnxruntime/ is absent (scripts/setup.sh fetches it)");
-        return;
-    }
     let tmp = tempfile::tempdir().unwrap();
     let data = tmp.path().join("data");
     std::fs::create_dir_all(&data).unwrap();
@@ -214,14 +220,9 @@ fn skeleton_only_eval_runs_the_model_on_every_mesh() {
 /// when the library holds it.
 #[test]
 fn the_library_lends_a_siblings_skeleton_but_never_the_scored_files_own() {
-    let Some(dir) = common::shared_rigs() else {
+    let Some((dir, root)) = rigs_and_runtime() else {
         return;
     };
-    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
-    if !root.join(".onnxruntime/libonnxruntime.so.1.31.1").is_file() {
-        eprintln!("SKIPPED: .onnxruntime/ is absent (scripts/setup.sh fetches it)");
-        return;
-    }
     let tmp = tempfile::tempdir().unwrap();
     let (scored, all) = (tmp.path().join("scored"), tmp.path().join("all"));
     let files = [

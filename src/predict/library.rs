@@ -329,31 +329,8 @@ mod tests {
     use super::*;
     use crate::rig::Bone;
 
-    /// A closed box mesh from `lo` to `hi`, each face split into two triangles.
     fn boxed(lo: Vec3, hi: Vec3) -> Mesh {
-        let mut m = Mesh::default();
-        for i in 0..8u32 {
-            m.positions.push(Vec3::new(
-                if i & 1 == 0 { lo.x } else { hi.x },
-                if i & 2 == 0 { lo.y } else { hi.y },
-                if i & 4 == 0 { lo.z } else { hi.z },
-            ));
-        }
-        m.triangles = vec![
-            [0, 2, 1],
-            [1, 2, 3],
-            [4, 5, 6],
-            [5, 7, 6],
-            [0, 1, 4],
-            [1, 5, 4],
-            [2, 6, 3],
-            [3, 6, 7],
-            [0, 4, 2],
-            [2, 4, 6],
-            [1, 3, 5],
-            [3, 7, 5],
-        ];
-        m
+        crate::mesh::box_mesh(lo, hi)
     }
 
     /// Two boxes: a body and a second block standing out along +x at the top (an "arm").

@@ -235,31 +235,7 @@ mod tests {
     use crate::rig::Bone;
 
     fn cube() -> Mesh {
-        let mut m = Mesh::default();
-        for i in 0..8u32 {
-            m.positions.push(Vec3::new(
-                if i & 1 == 0 { -1.0 } else { 1.0 },
-                if i & 2 == 0 { -1.0 } else { 1.0 },
-                if i & 4 == 0 { -1.0 } else { 1.0 },
-            ));
-        }
-        // Outward-facing (counter-clockwise seen from outside).
-        m.triangles = vec![
-            [0, 2, 1],
-            [1, 2, 3],
-            [4, 5, 6],
-            [5, 7, 6],
-            [0, 1, 4],
-            [1, 5, 4],
-            [2, 6, 3],
-            [3, 6, 7],
-            [0, 4, 2],
-            [2, 4, 6],
-            [1, 3, 5],
-            [3, 7, 5],
-        ];
-        m.compute_normals();
-        m
+        crate::mesh::box_mesh(Vec3::splat(-1.0), Vec3::ONE)
     }
 
     fn surface_of(m: &Mesh) -> SurfaceModel {

@@ -83,6 +83,15 @@ impl TestApp {
         r.json().await.unwrap()
     }
 
+    /// The bone tree a finished job links to.
+    pub async fn skeleton_of(&self, done: &Value) -> Value {
+        self.get(done["result"]["skeleton"].as_str().unwrap())
+            .await
+            .json()
+            .await
+            .unwrap()
+    }
+
     pub async fn get(&self, path: &str) -> Response {
         self.client.get(self.url(path)).send().await.unwrap()
     }

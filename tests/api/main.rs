@@ -70,14 +70,23 @@ async fn a_mesh_is_rigged_end_to_end() {
         .unwrap();
     assert_eq!(r.status(), 304);
 
-    let tree: Value = app
-        .get(done["result"]["skeleton"].as_str().unwrap())
-        .await
-        .json()
-        .await
-        .unwrap();
+    let tree = app.skeleton_of(&done).await;
     assert_eq!(tree["bones"].as_array().unwrap().len() as u64, bones);
     app.stop().await;
+}
+
+/// Rigs the figure with `query` and returns the bone names of its skeleton.json.
+async fn rigged_bone_names(app: &TestApp, query: &str) -> Vec<String> {
+    let job = app.submit_figure(query).await;
+    let done = app.wait_end(&id_of(&job), JOB_TIMEOUT).await;
+    assert_eq!(done["status"], "succeeded", "{done}");
+    let tree = app.skeleton_of(&done).await;
+    tree["bones"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|b| b["name"].as_str().unwrap().to_string())
+        .collect()
 }
 
 /// A library holding a rig of this very figure: the job borrows it (the artist's bone
@@ -88,33 +97,17 @@ async fn a_library_rig_of_a_close_relative_is_borrowed() {
     use rigserve::predict::library::{Entry, Library};
     use rigserve::rig::{Bone, Skeleton};
     let asset = rigserve::mesh::load(&figure_obj(), &Default::default()).unwrap();
+    let joints = [
+        ("lib_hips", None, [0.0, 0.95, 0.0]),
+        ("lib_head", Some(0), [0.0, 1.6, 0.0]),
+        ("lib_arm_l", Some(0), [-0.6, 1.4, 0.0]),
+        ("lib_arm_r", Some(0), [0.6, 1.4, 0.0]),
+    ];
     let mut skel = Skeleton {
-        bones: vec![
-            Bone::new(
-                "lib_hips",
-                None,
-                glam::Vec3::new(0.0, 0.95, 0.0),
-                glam::Vec3::ZERO,
-            ),
-            Bone::new(
-                "lib_head",
-                Some(0),
-                glam::Vec3::new(0.0, 1.6, 0.0),
-                glam::Vec3::ZERO,
-            ),
-            Bone::new(
-                "lib_arm_l",
-                Some(0),
-                glam::Vec3::new(-0.6, 1.4, 0.0),
-                glam::Vec3::ZERO,
-            ),
-            Bone::new(
-                "lib_arm_r",
-                Some(0),
-                glam::Vec3::new(0.6, 1.4, 0.0),
-                glam::Vec3::ZERO,
-            ),
-        ],
+        bones: joints
+            .iter()
+            .map(|&(name, parent, p)| Bone::new(name, parent, p.into(), glam::Vec3::ZERO))
+            .collect(),
         ..Skeleton::default()
     };
     skel.infer_tails();
@@ -125,40 +118,13 @@ async fn a_library_rig_of_a_close_relative_is_borrowed() {
         .unwrap();
     let lib = file.clone();
     let app = spawn_app(move |c| c.model.as_mut().unwrap().library = Some(lib)).await;
-    let names = |tree: &Value| -> Vec<String> {
-        tree["bones"]
-            .as_array()
-            .unwrap()
-            .iter()
-            .map(|b| b["name"].as_str().unwrap().to_string())
-            .collect()
-    };
-    let job = app.submit_figure("?category=humanoid").await;
-    let done = app.wait_end(&id_of(&job), JOB_TIMEOUT).await;
-    assert_eq!(done["status"], "succeeded", "{done}");
-    let tree: Value = app
-        .get(done["result"]["skeleton"].as_str().unwrap())
-        .await
-        .json()
-        .await
-        .unwrap();
-    let got = names(&tree);
+    let got = rigged_bone_names(&app, "?category=humanoid").await;
     assert_eq!(got.len(), 4, "{got:?}");
     assert!(got.iter().all(|n| n.starts_with("lib_")), "{got:?}");
     // template=mixamo or none leaves the skeleton to the model.
     for t in ["mixamo", "none"] {
-        let job = app
-            .submit_figure(&format!("?category=humanoid&template={t}"))
-            .await;
-        let done = app.wait_end(&id_of(&job), JOB_TIMEOUT).await;
-        assert_eq!(done["status"], "succeeded", "{done}");
-        let tree: Value = app
-            .get(done["result"]["skeleton"].as_str().unwrap())
-            .await
-            .json()
-            .await
-            .unwrap();
-        assert!(names(&tree).iter().all(|n| !n.starts_with("lib_")), "{t}");
+        let got = rigged_bone_names(&app, &format!("?category=humanoid&template={t}")).await;
+        assert!(got.iter().all(|n| !n.starts_with("lib_")), "{t}: {got:?}");
     }
     app.stop().await;
 
