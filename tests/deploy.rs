@@ -353,6 +353,10 @@ fn dockerfile_and_image_build_script_agree() {
         );
         assert!(repo().join(src).exists(), "{src} is gone");
     }
+    assert!(
+        ignore.lines().any(|l| l == "models/library.json"),
+        ".dockerignore lets the skeleton library (third-party rigs) into the image"
+    );
 
     // The builder is the toolchain this repository builds with.
     let rustc = Command::new("rustc")
@@ -401,5 +405,9 @@ fn image_layout_serves_rigs_and_drains_on_sigterm() {
     ] {
         assert!(root.join(p).is_file(), "{p} missing from the layout");
     }
+    assert!(
+        !root.join("app/models/library.json").exists(),
+        "the skeleton library (third-party rigs) is in the image layout"
+    );
     let _ = std::fs::remove_dir_all(&root);
 }
