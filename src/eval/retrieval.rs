@@ -41,6 +41,15 @@ pub fn eval_retrieval(
         let frame = BoxFrame::of(mesh);
         let mut pred = lib.entries[best].fit(&points, warp);
         pred.map_points(|q| frame.invert(q));
+        if warp {
+            // As the predictor does with a borrowed skeleton (in its unit frame).
+            if let Ok(s) = crate::predict::mesh_samples(mesh, crate::predict::MODEL_POINTS, 0) {
+                let norm = s.normalization;
+                pred.map_points(|p| norm.apply(p));
+                crate::predict::inside::pull_inside(&mut pred, &s);
+                pred.map_points(|p| norm.invert(p));
+            }
+        }
         report.joints_pred = pred.len();
         report.valid = true;
         report.skeleton = Some(score_skeleton(

@@ -5,6 +5,7 @@
 //! A partial skeleton (bones to keep) becomes the prompt: it is normalized, tokenized, and
 //! decoding continues after it, so the kept bones come first in the result, unchanged.
 
+pub mod inside;
 pub mod library;
 pub mod score;
 
@@ -420,6 +421,7 @@ fn library_candidates(
             let e = &lib.entries[i];
             let mut s = e.fit(&shape, true);
             s.map_points(|q| frame.invert(q));
+            inside::pull_inside(&mut s, samples);
             (e.name.clone(), d, s)
         })
         .collect()
