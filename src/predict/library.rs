@@ -1,6 +1,7 @@
 //! A library of rigged meshes to borrow skeletons from: the mesh most like the one being
-//! rigged (by the shape of its surface, with each axis of the bounding box stretched to
-//! the same length, so proportions do not decide) lends its skeleton, which is then moved
+//! rigged (by the shape of its surface with each axis of the bounding box stretched to
+//! the same length, so that a stocky and a slender build of one character still match,
+//! plus a smaller term for the box's proportions) lends its skeleton, which is then moved
 //! onto the new mesh by the displacement between the two surfaces. An artist rigging a
 //! character that resembles one already rigged starts from that rig; so does this.
 //!
@@ -258,6 +259,9 @@ impl Library {
             let bad = |why: String| LibraryError::Entry(path.into(), e.name.clone(), why);
             if e.points.is_empty() || !e.points.iter().all(|p| p.is_finite()) {
                 return Err(bad("no finite surface samples".into()));
+            }
+            if !(e.proportions.is_finite() && e.proportions.min_element() > 0.0) {
+                return Err(bad("proportions are not positive".into()));
             }
             e.skeleton
                 .validate(usize::MAX)
