@@ -131,9 +131,13 @@ pub async fn start_s3() -> S3 {
 
 /// Runs `rigserve serve` as a child process with `args` (the model flags and a random
 /// port are added) and returns it with its base URL, read from its first line.
+///
+/// Without the skeleton library that setup may have written into models/: a test mesh a
+/// library rig resembles would skip decoding and finish in tens of milliseconds, too fast
+/// for these tests to kill a process while the job runs.
 pub fn spawn_serve(args: &[String], envs: &[(&str, &str)]) -> (Kill, String) {
     let mut child = Command::new(env!("CARGO_BIN_EXE_rigserve"))
-        .args(["serve", "--bind", "127.0.0.1:0"])
+        .args(["serve", "--bind", "127.0.0.1:0", "--no-library"])
         .arg("--models")
         .arg(repo().join("models"))
         .arg("--ort-lib")
