@@ -224,6 +224,15 @@ pub(super) struct Expect<'a> {
     pub(super) dims: &'a [Dim],
 }
 
+/// One float tensor per name, all of shape `dims` (the cache inputs and outputs).
+fn float_outlets<'a>(names: &'a [String], dims: &'a [Dim]) -> impl Iterator<Item = Expect<'a>> {
+    names.iter().map(move |n| Expect {
+        name: n,
+        ty: TensorElementType::Float32,
+        dims,
+    })
+}
+
 pub(super) fn check_outlets(
     path: &Path,
     what: &str,
@@ -419,11 +428,7 @@ fn load_step(
             dims: &[],
         },
     ];
-    ins.extend(past_names.iter().map(|n| Expect {
-        name: n,
-        ty: Float32,
-        dims: &kv_dims,
-    }));
+    ins.extend(float_outlets(&past_names, &kv_dims));
     check_outlets(path, "decode step inputs", step.inputs(), &ins)?;
     let logits_dims = [Dynamic, Is(1), Is(info.vocab_size)];
     let mut outs = vec![Expect {
@@ -431,11 +436,7 @@ fn load_step(
         ty: Float32,
         dims: &logits_dims,
     }];
-    outs.extend(present_names.iter().map(|n| Expect {
-        name: n,
-        ty: Float32,
-        dims: &kv_dims,
-    }));
+    outs.extend(float_outlets(&present_names, &kv_dims));
     check_outlets(path, "decode step outputs", step.outputs(), &outs)?;
     Ok(step)
 }
@@ -522,22 +523,14 @@ impl SkeletonModel {
                 dims: &[Dynamic, Dynamic],
             },
         ];
-        ins.extend(past_names.iter().map(|n| Expect {
-            name: n,
-            ty: Float32,
-            dims: &kv_dims,
-        }));
+        ins.extend(float_outlets(&past_names, &kv_dims));
         check_outlets(&files.decoder, "decoder inputs", decoder.inputs(), &ins)?;
         let mut outs = vec![Expect {
             name: "logits",
             ty: Float32,
             dims: &logits_dims,
         }];
-        outs.extend(new_names.iter().map(|n| Expect {
-            name: n,
-            ty: Float32,
-            dims: &kv_dims,
-        }));
+        outs.extend(float_outlets(&new_names, &kv_dims));
         check_outlets(&files.decoder, "decoder outputs", decoder.outputs(), &outs)?;
         let present_names: Vec<String> = (0..info.n_layers)
             .flat_map(|i| [format!("present.{i}.key"), format!("present.{i}.value")])

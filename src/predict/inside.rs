@@ -19,14 +19,9 @@ const STEPS: usize = 40;
 /// Moves `skel`'s joints (unit frame) that lie outside the mesh into it. Tails that ended
 /// at a moved child's joint follow it; a leaf's tail moves with its own joint.
 pub fn pull_inside(skel: &mut Skeleton, samples: &MeshSamples) {
-    let surface: Vec<(Vec3, Vec3)> = samples
-        .points
-        .iter()
-        .map(|r| (Vec3::new(r[0], r[1], r[2]), Vec3::new(r[3], r[4], r[5])))
-        .collect();
     let old: Vec<Vec3> = skel.bones.iter().map(|b| b.head).collect();
     for b in &mut skel.bones {
-        if let Some(p) = inward(b.head, &surface, samples) {
+        if let Some(p) = inward(b.head, samples) {
             b.head = p;
         }
     }
@@ -45,13 +40,15 @@ pub fn pull_inside(skel: &mut Skeleton, samples: &MeshSamples) {
 /// Where an outside joint at `q` goes: the midpoint of the first stretch inside the mesh
 /// along the inward normal of the nearest sample; `None` when `q` is inside already, out
 /// of reach, or no stretch inside is found.
-fn inward(q: Vec3, surface: &[(Vec3, Vec3)], samples: &MeshSamples) -> Option<Vec3> {
+fn inward(q: Vec3, samples: &MeshSamples) -> Option<Vec3> {
     if samples.surface.is_inside(q) {
         return None;
     }
-    let &(s, n) = surface
-        .iter()
-        .min_by(|a, b| a.0.distance_squared(q).total_cmp(&b.0.distance_squared(q)))?;
+    let r = samples.points.iter().min_by(|a, b| {
+        let d = |r: &[f32; 6]| Vec3::new(r[0], r[1], r[2]).distance_squared(q);
+        d(a).total_cmp(&d(b))
+    })?;
+    let (s, n) = (Vec3::new(r[0], r[1], r[2]), Vec3::new(r[3], r[4], r[5]));
     if s.distance(q) > REACH {
         return None;
     }

@@ -83,13 +83,12 @@ pub fn shape_points(mesh: &Mesh, seed: u64) -> Vec<Vec3> {
         .collect()
 }
 
-/// The first [`SHAPE_POINTS`] of surface samples already drawn (independent draws, so
-/// any prefix is itself a sample), in `frame`'s box coordinates.
-pub fn shape_of_samples(points: &[Vec3], frame: &BoxFrame) -> Vec<Vec3> {
-    points
-        .iter()
+/// The first [`SHAPE_POINTS`] of surface samples already drawn (`x y z nx ny nz` rows;
+/// independent draws, so any prefix is itself a sample), in `frame`'s box coordinates.
+pub fn shape_of_samples(rows: &[[f32; 6]], frame: &BoxFrame) -> Vec<Vec3> {
+    rows.iter()
         .take(SHAPE_POINTS)
-        .map(|&p| frame.apply(p))
+        .map(|r| frame.apply(Vec3::new(r[0], r[1], r[2])))
         .collect()
 }
 

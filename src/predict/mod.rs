@@ -296,28 +296,26 @@ pub fn predict_from_samples(
         });
         skeletons.push(Some(skel));
     }
-    // Library candidates come nearest first.
-    let trusted = candidates.iter().position(
-        |c| matches!(c.origin, Origin::Library { shape, .. } if shape <= cfg.library_trust),
-    );
-    let chosen = trusted
-        .or_else(|| {
-            (0..candidates.len())
-                .filter(|&k| candidates[k].score.is_some())
-                .min_by(|&a, &b| {
-                    let cost = |k: usize| candidates[k].score.unwrap().cost;
-                    cost(a).total_cmp(&cost(b)).then(a.cmp(&b))
-                })
-        })
-        .ok_or_else(|| {
-            PredictError::NoCandidate(
-                candidates
-                    .iter()
-                    .filter_map(|c| c.error.clone())
-                    .next()
-                    .unwrap_or_default(),
-            )
-        })?;
+    // A trusted library rig is the only candidate there is.
+    let chosen = if trusted {
+        Some(0)
+    } else {
+        (0..candidates.len())
+            .filter(|&k| candidates[k].score.is_some())
+            .min_by(|&a, &b| {
+                let cost = |k: usize| candidates[k].score.unwrap().cost;
+                cost(a).total_cmp(&cost(b)).then(a.cmp(&b))
+            })
+    };
+    let chosen = chosen.ok_or_else(|| {
+        PredictError::NoCandidate(
+            candidates
+                .iter()
+                .filter_map(|c| c.error.clone())
+                .next()
+                .unwrap_or_default(),
+        )
+    })?;
     let mut skeleton = skeletons[chosen].clone().expect("chosen has a skeleton");
     skeleton.map_points(|p| norm.invert(p));
     if let Some(k) = &kept {
@@ -407,12 +405,7 @@ fn library_candidates(
         return Vec::new();
     }
     let frame = BoxFrame::from_bounds(samples.bounds.0, samples.bounds.1);
-    let unit: Vec<Vec3> = samples
-        .points
-        .iter()
-        .map(|r| Vec3::new(r[0], r[1], r[2]))
-        .collect();
-    let shape = shape_of_samples(&unit, &frame);
+    let shape = shape_of_samples(&samples.points, &frame);
     lib.ranked(&shape, frame.proportions(), category)
         .into_iter()
         .filter(|&(i, _)| lib.entries[i].bones() <= max_bones)
