@@ -18,6 +18,8 @@
 //! # Ok::<(), InferError>(())
 //! ```
 
+mod attention;
+mod attention_op;
 mod backend;
 mod cache;
 mod error;

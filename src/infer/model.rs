@@ -190,6 +190,17 @@ pub(super) fn open_session(
     path: &Path,
     cfg: &SessionConfig,
 ) -> Result<Session, InferError> {
+    open_session_with(rt, path, cfg, false)
+}
+
+/// `custom_ops`: register rigserve's operator domain (`ai.rigserve`), which the decode
+/// step graph uses for its attention.
+fn open_session_with(
+    rt: &Runtime,
+    path: &Path,
+    cfg: &SessionConfig,
+    custom_ops: bool,
+) -> Result<Session, InferError> {
     if !path.is_file() {
         return Err(InferError::ModelNotFound(path.to_path_buf()));
     }
@@ -197,8 +208,14 @@ pub(super) fn open_session(
         path: path.to_path_buf(),
         message: m,
     };
-    Session::builder(rt.env())
-        .map_err(|e| load(e.to_string()))?
+    let mut builder = Session::builder(rt.env()).map_err(|e| load(e.to_string()))?;
+    if custom_ops {
+        let ops = super::attention_op::operators().map_err(|e| load(e.to_string()))?;
+        builder = builder
+            .with_operators(ops)
+            .map_err(|e| load(e.to_string()))?;
+    }
+    builder
         .with_intra_threads(cfg.intra_threads.max(1))
         .map_err(|e| load(e.to_string()))?
         .with_inter_threads(1)
@@ -382,7 +399,7 @@ fn load_step(
     use Dim::*;
     use TensorElementType::{Float32, Int32, Int64};
     let path = &files.step;
-    let step = open_session(rt, path, cfg)?;
+    let step = open_session_with(rt, path, cfg, true)?;
     let got = read_metadata(&step, path, "decoder_step")?;
     let same = |a: &ModelInfo| {
         (

@@ -5,10 +5,18 @@
 `decoder.onnx` reads every row's cache up to the longest row in the batch: rows that joined
 later are left-padded, and under load more than half of the cache a step reads is padding.
 On a CPU the decode step is bound by reading the cache, so that padding is paid in full.
-This graph runs one token per row through ONNX Runtime's `GroupQueryAttention` (domain
-`com.microsoft`), which attends over each row's own length (`seqlens_k`) and, when the past
-and present buffers are the same memory, writes the new key and value into the buffer in
-place. Rows are right-padded: row b's positions are columns 0..seqlens_k[b]-1.
+This graph runs one token per row through an attention op that attends over each row's own
+length (`seqlens_k`) and, when the past and present buffers are the same memory, writes the
+new key and value into the buffer in place. Rows are right-padded: row b's positions are
+columns 0..seqlens_k[b]-1.
+
+The shipped graph uses rigserve's own op, `ai.rigserve.RaggedAttention`, which the server
+registers (src/infer/attention_op.rs): it is ONNX Runtime's `GroupQueryAttention`
+(`com.microsoft`) in inputs, outputs and numbers, without that op's per-head matrix
+packing, which took 64 % of a batch-16 step. Stock ONNX Runtime (this Python side) cannot
+run it, so `check()` runs the `GroupQueryAttention` twin built from the same weights and
+checks that the shipped file is that twin with only the attention nodes swapped; the Rust
+tests (`tests/infer.rs`) check the shipped file against `decoder.onnx`.
 
 The graph is written directly with `onnx.helper` from the PyTorch weights (the exporters do
 not emit contrib ops); `check()` compares its logits with the PyTorch model.
@@ -29,6 +37,8 @@ from . import model as M
 
 STEP_FILE = "decoder_step.onnx"
 CONTRACT = "skeleton-v2"
+# The attention op of each flavour: (op_type, domain).
+ATTENTION = {"rigserve": ("RaggedAttention", "ai.rigserve"), "gqa": ("GroupQueryAttention", "com.microsoft")}
 
 
 def step_io_names(n_layers: int):
@@ -37,7 +47,8 @@ def step_io_names(n_layers: int):
     return ["input_ids", "position_ids", "seqlens_k", "total_sequence_length", *past], ["logits", *present]
 
 
-def build(model: M.SkeletonModel, path: str) -> str:
+def build(model: M.SkeletonModel, path: str, attention: str = "rigserve") -> str:
+    op_type, op_domain = ATTENTION[attention]
     cfg = model.cfg
     dec = model.decoder
     d, h, dh, n = cfg.d_model, cfg.n_heads, cfg.head_dim, cfg.dec_layers
@@ -77,12 +88,13 @@ def build(model: M.SkeletonModel, path: str) -> str:
         b = np.concatenate([t(a.q.bias), t(a.k.bias), t(a.v.bias)])
         nodes.append(helper.make_node("MatMul", [hn, const(f"{p}.qkv.w", w)], [f"{p}.qkv.mm"]))
         nodes.append(helper.make_node("Add", [f"{p}.qkv.mm", const(f"{p}.qkv.b", b)], [f"{p}.qkv"]))
+        past = [f"past_key_values.{i}.key", f"past_key_values.{i}.value", "seqlens_k", "total_sequence_length"]
+        # GQA's separate key and value inputs stay empty: q, k and v come packed.
+        att_in = [f"{p}.qkv", "", "", *past] if attention == "gqa" else [f"{p}.qkv", *past]
+        heads = {"num_heads": h, "kv_num_heads": h} if attention == "gqa" else {"num_heads": h}
         nodes.append(helper.make_node(
-            "GroupQueryAttention",
-            [f"{p}.qkv", "", "", f"past_key_values.{i}.key", f"past_key_values.{i}.value", "seqlens_k",
-             "total_sequence_length"],
-            [f"{p}.att", f"present.{i}.key", f"present.{i}.value"],
-            domain="com.microsoft", num_heads=h, kv_num_heads=h, scale=1.0 / float(np.sqrt(dh))))
+            op_type, att_in, [f"{p}.att", f"present.{i}.key", f"present.{i}.value"],
+            domain=op_domain, scale=1.0 / float(np.sqrt(dh)), **heads))
         o = linear(f"{p}.att", a.o, f"{p}.o", f"{p}.o.out")
         nodes.append(helper.make_node("Add", [x, o], [f"{p}.x1"]))
         h2 = layer_norm(f"{p}.x1", layer.ln2, f"{p}.ln2", f"{p}.h2")
@@ -107,7 +119,8 @@ def build(model: M.SkeletonModel, path: str) -> str:
     outputs = [helper.make_tensor_value_info("logits", TensorProto.FLOAT, ["batch", 1, cfg.vocab_size]),
                *[helper.make_tensor_value_info(nm, TensorProto.FLOAT, cache) for nm in outs[1:]]]
     graph = helper.make_graph(nodes, "skeleton_decoder_step", inputs, outputs, initializer=inits)
-    m = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 18), helper.make_opsetid("com.microsoft", 1)],
+    m = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 18), helper.make_opsetid("com.microsoft", 1),
+                                                *([helper.make_opsetid(op_domain, 1)] if attention != "gqa" else [])],
                           producer_name="rigserve training/skeleton/step_graph.py")
     m.ir_version = 10  # what onnxruntime 1.31 reads
     meta = {
@@ -123,11 +136,83 @@ def build(model: M.SkeletonModel, path: str) -> str:
     return path
 
 
+def attention_of(path: str) -> str:
+    """Which flavour of attention a step file uses."""
+    import onnx
+
+    types = {(n.op_type, n.domain) for n in onnx.load(path).graph.node}
+    found = [k for k, v in ATTENTION.items() if v in types]
+    if len(found) != 1:
+        raise AssertionError(f"{path}: expected one kind of attention node, found {found}")
+    return found[0]
+
+
+def convert(path: str, attention: str = "rigserve") -> str:
+    """Rewrites a step file's attention nodes, in place, to the other flavour: no weights
+    needed (a file whose PyTorch weights cannot be recovered still converts)."""
+    import onnx
+
+    m = onnx.load(path)
+    op_type, op_domain = ATTENTION[attention]
+    for n in m.graph.node:
+        if (n.op_type, n.domain) not in ATTENTION.values():
+            continue
+        real = [x for x in n.input if x]  # qkv, past key, past value, seqlens_k, total length
+        scale = next(a.f for a in n.attribute if a.name == "scale")
+        heads = next(a.i for a in n.attribute if a.name == "num_heads")
+        new = helper.make_node(op_type, ([real[0], "", "", *real[1:]] if attention == "gqa" else real), list(n.output),
+                               domain=op_domain, scale=scale, num_heads=heads,
+                               **({"kv_num_heads": heads} if attention == "gqa" else {}))
+        n.CopyFrom(new)
+    if attention != "gqa" and all(o.domain != op_domain for o in m.opset_import):
+        m.opset_import.append(helper.make_opsetid(op_domain, 1))
+    onnx.save(m, path)
+    return path
+
+
+def same_but_attention(a_path: str, b_path: str) -> None:
+    """Raises unless the two step files have the same weights, I/O and nodes, the attention
+    nodes apart (which must read the same past, seqlens and qkv, and write the same outputs)."""
+    import onnx
+
+    a, b = onnx.load(a_path).graph, onnx.load(b_path).graph
+
+    def nodes(g):
+        att = set(ATTENTION.values())
+        return [("attention" if (n.op_type, n.domain) in att else (n.op_type, n.domain),
+                 [x for x in n.input if x], list(n.output)) for n in g.node]
+
+    if nodes(a) != nodes(b):
+        raise AssertionError(f"{a_path} and {b_path} differ in more than their attention nodes")
+    wa = {t.name: numpy_helper.to_array(t) for t in a.initializer}
+    wb = {t.name: numpy_helper.to_array(t) for t in b.initializer}
+    if wa.keys() != wb.keys() or any(not np.array_equal(wa[k], wb[k]) for k in wa):
+        raise AssertionError(f"{a_path} and {b_path} have different weights")
+    if [str(x) for x in a.input] != [str(x) for x in b.input] or [str(x) for x in a.output] != [str(x) for x in b.output]:
+        raise AssertionError(f"{a_path} and {b_path} have different inputs or outputs")
+
+
 def check(model: M.SkeletonModel, onnx_dir: str, rows: int = 5, seed: int = 0, tol: float = 1e-3) -> float:
-    """Logits of the step graph for a ragged batch (rows of different lengths, the cache
-    right-padded, the past and present bound to one buffer so the op writes in place)
-    against PyTorch's full-sequence logits. Returns the largest difference; raises when
-    it passes `tol` or when the new keys were not written where the contract says."""
+    """Checks `decoder_step.onnx` in `onnx_dir`: run as is when it uses `GroupQueryAttention`;
+    when it uses rigserve's op, as its `GroupQueryAttention` twin built from `model` (after
+    checking that the two files differ only in their attention nodes)."""
+    import tempfile
+
+    path = os.path.join(onnx_dir, STEP_FILE)
+    if attention_of(path) == "gqa":
+        return check_logits(model, path, rows, seed, tol)
+    with tempfile.TemporaryDirectory() as tmp:
+        twin = build(model, os.path.join(tmp, STEP_FILE), attention="gqa")
+        same_but_attention(path, twin)
+        return check_logits(model, twin, rows, seed, tol)
+
+
+def check_logits(model: M.SkeletonModel, path: str, rows: int = 5, seed: int = 0, tol: float = 1e-3) -> float:
+    """Logits of a (`GroupQueryAttention`) step graph for a ragged batch (rows of different
+    lengths, the cache right-padded, the past and present bound to one buffer so the op
+    writes in place) against PyTorch's full-sequence logits. Returns the largest
+    difference; raises when it passes `tol` or when the new keys were not written where the
+    contract says."""
     import onnxruntime as ort
 
     cfg = model.cfg
@@ -135,7 +220,7 @@ def check(model: M.SkeletonModel, onnx_dir: str, rows: int = 5, seed: int = 0, t
     so = ort.SessionOptions()
     so.intra_op_num_threads = 1
     so.log_severity_level = 3
-    sess = ort.InferenceSession(os.path.join(onnx_dir, STEP_FILE), so, providers=["CPUExecutionProvider"])
+    sess = ort.InferenceSession(path, so, providers=["CPUExecutionProvider"])
     lat, h, dh, n = cfg.n_latents, cfg.n_heads, cfg.head_dim, cfg.dec_layers
     lens = [int(x) for x in rng.integers(2, 12, size=rows)]
     toks = [rng.integers(0, cfg.vocab_size, size=k + 1) for k in lens]  # the last one is the step's token
@@ -189,12 +274,20 @@ def main(argv=None):
     from .init_from_onnx import config_of, load_onnx_weights
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--onnx", required=True, help="model folder with encoder.onnx / decoder.onnx; decoder_step.onnx is written there")
+    ap.add_argument("--onnx", help="model folder with encoder.onnx / decoder.onnx; decoder_step.onnx is written there")
+    ap.add_argument("--convert", metavar="FILE", help="instead: swap the attention nodes of an existing step file")
+    ap.add_argument("--attention", choices=sorted(ATTENTION), default="rigserve",
+                    help="rigserve: the server's own op (default); gqa: stock ONNX Runtime's GroupQueryAttention")
     a = ap.parse_args(argv)
+    if a.convert:
+        print(f"[step] {convert(a.convert, a.attention)}: attention is now {attention_of(a.convert)}")
+        return 0
+    if not a.onnx:
+        ap.error("--onnx or --convert is required")
     model = M.SkeletonModel(M.ModelConfig.from_dict(config_of(a.onnx)))
     load_onnx_weights(model, a.onnx)
     model.eval()
-    path = build(model, os.path.join(a.onnx, STEP_FILE))
+    path = build(model, os.path.join(a.onnx, STEP_FILE), attention=a.attention)
     diff = check(model, a.onnx)
     print(f"[step] wrote {path} ({os.path.getsize(path) / 1e6:.1f} MB); logits vs PyTorch within {diff:.2e}")
 

@@ -1,0 +1,199 @@
+//! `ai.rigserve.RaggedAttention`: the decode step's attention as an ONNX Runtime custom
+//! operator, registered on the step session (ONNX_CONTRACT.md, "Decode step").
+//!
+//! Same inputs, outputs and semantics as the `GroupQueryAttention` node it replaces
+//! (packed q|k|v of one token per row, each row attending over its own `seqlens_k`
+//! written columns plus its new one, the new key and value written at column
+//! `seqlens_k`), with the per-head loop of [`super::attention::attend`]. When the present
+//! output is bound to the past input's buffer (the server binds them so), the new column
+//! is written in place and nothing else is touched; otherwise the past is copied first.
+
+use super::attention::attend;
+use ort::operator::{
+    ComputeContext, Kernel, KernelContext, Operator, OperatorDomain, OperatorInput, OperatorOutput,
+};
+use ort::value::TensorElementType;
+
+pub const DOMAIN: &str = "ai.rigserve";
+pub const OP: &str = "RaggedAttention";
+
+/// The domain holding [`RaggedAttention`], for `SessionBuilder::with_operators`.
+pub fn operators() -> ort::Result<OperatorDomain> {
+    OperatorDomain::new(DOMAIN)?.add(RaggedAttention)
+}
+
+pub struct RaggedAttention;
+
+impl Operator for RaggedAttention {
+    type Kernel<'attr> = RaggedAttentionKernel;
+
+    fn name(&self) -> &str {
+        OP
+    }
+
+    fn inputs(&self) -> impl IntoIterator<Item = OperatorInput> {
+        use TensorElementType::{Float32, Int32};
+        [
+            OperatorInput::required(Float32), // qkv (B, 1, 3·H·dh)
+            OperatorInput::required(Float32), // past key (B, H, C, dh)
+            OperatorInput::required(Float32), // past value
+            OperatorInput::required(Int32),   // seqlens_k (B)
+            OperatorInput::optional(Int32),   // total_sequence_length (scalar), checked
+        ]
+    }
+
+    fn outputs(&self) -> impl IntoIterator<Item = OperatorOutput> {
+        use TensorElementType::Float32;
+        [
+            OperatorOutput::required(Float32), // attention (B, 1, H·dh)
+            OperatorOutput::required(Float32), // present key (B, H, C, dh)
+            OperatorOutput::required(Float32), // present value
+        ]
+    }
+
+    fn create_kernel<'attr>(&self, k: &KernelContext<'attr>) -> ort::Result<Self::Kernel<'attr>> {
+        let heads = k
+            .get::<i64>("num_heads")
+            .filter(|&h| h > 0)
+            .ok_or_else(|| ort::Error::new("RaggedAttention needs num_heads > 0"))?;
+        Ok(RaggedAttentionKernel {
+            heads: heads as usize,
+            scale: k.get::<f32>("scale").filter(|s| *s != 0.0),
+        })
+    }
+}
+
+pub struct RaggedAttentionKernel {
+    heads: usize,
+    /// None: 1/√dh.
+    scale: Option<f32>,
+}
+
+fn fail(m: impl std::fmt::Display) -> ort::Error {
+    ort::Error::new(format!("RaggedAttention: {m}"))
+}
+
+/// A buffer shared by the row closures of one call; each row writes only its own slice.
+#[derive(Clone, Copy)]
+struct Shared(*mut f32);
+// SAFETY: the closures write disjoint rows (see `compute`), and the buffer outlives them.
+unsafe impl Send for Shared {}
+unsafe impl Sync for Shared {}
+
+impl Shared {
+    /// A method, not the field: a closure using `.0` would capture the bare pointer,
+    /// which is not `Sync`.
+    fn at(self, offset: usize) -> *mut f32 {
+        // SAFETY (of callers): offsets stay within the buffer's checked shape.
+        self.0.wrapping_add(offset)
+    }
+}
+
+impl Kernel for RaggedAttentionKernel {
+    fn compute(&mut self, ctx: &ComputeContext) -> ort::Result<()> {
+        let input = |i: usize| {
+            ctx.input(i)?
+                .ok_or_else(|| fail(format!("input {i} missing")))
+        };
+        let (qkv_in, past_k_in, past_v_in, lens_in) = (input(0)?, input(1)?, input(2)?, input(3)?);
+        let (qs, qkv) = qkv_in.try_extract_tensor::<f32>()?;
+        let (ps, past_k) = past_k_in.try_extract_tensor::<f32>()?;
+        let (vs, past_v) = past_v_in.try_extract_tensor::<f32>()?;
+        let (_, lens) = lens_in.try_extract_tensor::<i32>()?;
+        let (h, dims) = (self.heads, ps.to_vec());
+        let [b, hh, cols, dh] = dims[..] else {
+            return Err(fail(format!(
+                "past key of shape {ps:?}, want (B, H, C, dh)"
+            )));
+        };
+        let (b, cols, dh) = (b as usize, cols as usize, dh as usize);
+        if hh as usize != h || vs.to_vec() != dims || dh == 0 {
+            return Err(fail(format!(
+                "past key {ps:?} and value {vs:?} for {h} heads"
+            )));
+        }
+        if qs.to_vec() != [b as i64, 1, (3 * h * dh) as i64] {
+            return Err(fail(format!(
+                "qkv of shape {qs:?}, want ({b}, 1, {})",
+                3 * h * dh
+            )));
+        }
+        if lens.len() != b {
+            return Err(fail(format!("{} seqlens_k for {b} rows", lens.len())));
+        }
+        if let Some(&bad) = lens.iter().find(|&&n| n < 0 || n as usize >= cols) {
+            return Err(fail(format!(
+                "seqlens_k {bad} outside a cache of {cols} columns"
+            )));
+        }
+        if let Some(total) = ctx.input(4)? {
+            let (_, t) = total.try_extract_tensor::<i32>()?;
+            let need = lens.iter().copied().max().unwrap_or(0) + 1;
+            if t.first().is_some_and(|&t| t < need || t as usize > cols) {
+                return Err(fail(format!(
+                    "total_sequence_length {t:?}, rows need {need}"
+                )));
+            }
+        }
+        let lens: Vec<usize> = lens.iter().map(|&n| n as usize).collect();
+        let n = b * h * cols * dh;
+        let (pk, pv) = (past_k.as_ptr(), past_v.as_ptr());
+        let shape = [b, h, cols, dh];
+        let present = |i: usize| -> ort::Result<Shared> {
+            let mut v = ctx
+                .output(i, shape)?
+                .ok_or_else(|| fail(format!("output {i} missing")))?;
+            let (_, d) = v.try_extract_tensor_mut::<f32>()?;
+            Ok(Shared(d.as_mut_ptr()))
+        };
+        let (ok, ov) = (present(1)?, present(2)?);
+        for (dst, src) in [(ok, pk), (ov, pv)] {
+            if !std::ptr::eq(dst.0, src) {
+                // SAFETY: both buffers hold `n` floats (shapes checked above) and are
+                // distinct allocations, as the pointers differ.
+                unsafe { std::ptr::copy_nonoverlapping(src, dst.0, n) };
+            }
+        }
+        let mut att = ctx
+            .output(0, [b, 1, h * dh])?
+            .ok_or_else(|| fail("output 0 missing"))?;
+        let att = Shared(att.try_extract_tensor_mut::<f32>()?.1.as_mut_ptr());
+        let qkv = Shared(qkv.as_ptr().cast_mut());
+        let scale = self.scale.unwrap_or(1.0 / (dh as f32).sqrt());
+        let row = |r: usize| {
+            let mut scores = vec![0.0f32; lens[r] + 1];
+            // SAFETY: row r reads its qkv row and writes its own planes of the present
+            // buffers and its own attention row; no two calls share a row, and every
+            // offset is within the shapes checked above.
+            unsafe {
+                let q = std::slice::from_raw_parts(qkv.at(r * 3 * h * dh), 3 * h * dh);
+                let out = std::slice::from_raw_parts_mut(att.at(r * h * dh), h * dh);
+                for head in 0..h {
+                    let plane = (r * h + head) * cols * dh;
+                    let k = std::slice::from_raw_parts_mut(ok.at(plane), cols * dh);
+                    let v = std::slice::from_raw_parts_mut(ov.at(plane), cols * dh);
+                    let col = lens[r] * dh;
+                    let new_k = &q[(h + head) * dh..(h + head + 1) * dh];
+                    let new_v = &q[(2 * h + head) * dh..(2 * h + head + 1) * dh];
+                    k[col..col + dh].copy_from_slice(new_k);
+                    v[col..col + dh].copy_from_slice(new_v);
+                    attend(
+                        &q[head * dh..(head + 1) * dh],
+                        k,
+                        v,
+                        lens[r] + 1,
+                        scale,
+                        &mut scores,
+                        &mut out[head * dh..(head + 1) * dh],
+                    );
+                }
+            }
+        };
+        if b == 1 {
+            row(0);
+            Ok(())
+        } else {
+            ctx.par_for(b, 0, row)
+        }
+    }
+}
