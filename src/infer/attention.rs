@@ -29,17 +29,21 @@ fn exp_neg(x: f32) -> f32 {
     f32::from_bits(((n as i32 + 127) << 23) as u32) * p
 }
 
-/// `out = softmax(scale · q·Kᵀ) · V` over the first `len` rows of `k` and `v`
-/// (`len × dh` each, row-major), with `scores` as scratch of at least `len`.
-pub fn attend(
-    q: &[f32],
-    k: &[f32],
-    v: &[f32],
-    len: usize,
-    scale: f32,
-    scores: &mut [f32],
-    out: &mut [f32],
-) {
+/// One head's query over its cache: `k` and `v` hold at least `len` rows of `q.len()`
+/// floats each (row-major).
+#[derive(Clone, Copy)]
+pub struct Head<'a> {
+    pub q: &'a [f32],
+    pub k: &'a [f32],
+    pub v: &'a [f32],
+    pub len: usize,
+    pub scale: f32,
+}
+
+/// `out = softmax(scale · q·Kᵀ) · V` over the first `len` rows of `k` and `v`, with
+/// `scores` as scratch of at least `len`.
+pub fn attend(head: Head, scores: &mut [f32], out: &mut [f32]) {
+    let Head { q, k, v, len, .. } = head;
     let dh = q.len();
     assert!(
         len >= 1 && k.len() >= len * dh && v.len() >= len * dh && scores.len() >= len,
@@ -49,21 +53,20 @@ pub fn attend(
     #[cfg(target_arch = "x86_64")]
     if dh == 32 && std::arch::is_x86_feature_detected!("avx512f") {
         // SAFETY: the feature was detected, and the asserts above bound every access.
-        unsafe { avx512::attend32(q, k, v, len, scale, scores, out) };
+        unsafe { avx512::attend32(head, scores, out) };
         return;
     }
-    portable(q, k, v, len, scale, scores, out);
+    portable(head, scores, out);
 }
 
-fn portable(
-    q: &[f32],
-    k: &[f32],
-    v: &[f32],
-    len: usize,
-    scale: f32,
-    scores: &mut [f32],
-    out: &mut [f32],
-) {
+fn portable(head: Head, scores: &mut [f32], out: &mut [f32]) {
+    let Head {
+        q,
+        k,
+        v,
+        len,
+        scale,
+    } = head;
     let dh = q.len();
     let scores = &mut scores[..len];
     for (s, kj) in scores.iter_mut().zip(k.chunks_exact(dh)) {
@@ -183,15 +186,14 @@ mod avx512 {
 
     /// [`super::attend`] for 32-wide heads: a key or value row is two 16-lane registers.
     #[target_feature(enable = "avx512f")]
-    pub(super) unsafe fn attend32(
-        q: &[f32],
-        k: &[f32],
-        v: &[f32],
-        len: usize,
-        scale: f32,
-        scores: &mut [f32],
-        out: &mut [f32],
-    ) {
+    pub(super) unsafe fn attend32(head: super::Head, scores: &mut [f32], out: &mut [f32]) {
+        let super::Head {
+            q,
+            k,
+            v,
+            len,
+            scale,
+        } = head;
         let sc = _mm512_set1_ps(scale);
         let q0 = _mm512_mul_ps(_mm512_loadu_ps(q.as_ptr()), sc);
         let q1 = _mm512_mul_ps(_mm512_loadu_ps(q.as_ptr().add(16)), sc);
@@ -293,10 +295,17 @@ mod tests {
                 let mut scores = vec![0.0; len];
                 let mut out = vec![0.0; dh];
                 let scale = 1.0 / (dh as f32).sqrt();
-                attend(&q, &k, &v, len, scale, &mut scores, &mut out);
+                let head = Head {
+                    q: &q,
+                    k: &k,
+                    v: &v,
+                    len,
+                    scale,
+                };
+                attend(head, &mut scores, &mut out);
                 let want = reference(&q, &k, &v, len, scale);
                 let mut port = vec![0.0; dh];
-                portable(&q, &k, &v, len, scale, &mut scores, &mut port);
+                portable(head, &mut scores, &mut port);
                 for d in 0..dh {
                     assert!(
                         (out[d] as f64 - want[d]).abs() < 2e-5,
@@ -331,7 +340,14 @@ mod tests {
     fn one_position_returns_its_value() {
         let (q, k, v) = (filled(32, 4), filled(32, 5), filled(32, 6));
         let mut out = vec![0.0; 32];
-        attend(&q, &k, &v, 1, 0.2, &mut [0.0], &mut out);
+        let head = Head {
+            q: &q,
+            k: &k,
+            v: &v,
+            len: 1,
+            scale: 0.2,
+        };
+        attend(head, &mut [0.0], &mut out);
         for d in 0..32 {
             assert!((out[d] - v[d]).abs() < 1e-6);
         }

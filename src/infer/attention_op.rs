@@ -8,7 +8,7 @@
 //! output is bound to the past input's buffer (the server binds them so), the new column
 //! is written in place and nothing else is touched; otherwise the past is copied first.
 
-use super::attention::attend;
+use super::attention::{attend, Head};
 use ort::operator::{
     ComputeContext, Kernel, KernelContext, Operator, OperatorDomain, OperatorInput, OperatorOutput,
 };
@@ -168,24 +168,23 @@ impl Kernel for RaggedAttentionKernel {
             unsafe {
                 let q = std::slice::from_raw_parts(qkv.at(r * 3 * h * dh), 3 * h * dh);
                 let out = std::slice::from_raw_parts_mut(att.at(r * h * dh), h * dh);
-                for head in 0..h {
-                    let plane = (r * h + head) * cols * dh;
+                for i in 0..h {
+                    let plane = (r * h + i) * cols * dh;
                     let k = std::slice::from_raw_parts_mut(ok.at(plane), cols * dh);
                     let v = std::slice::from_raw_parts_mut(ov.at(plane), cols * dh);
                     let col = lens[r] * dh;
-                    let new_k = &q[(h + head) * dh..(h + head + 1) * dh];
-                    let new_v = &q[(2 * h + head) * dh..(2 * h + head + 1) * dh];
+                    let new_k = &q[(h + i) * dh..(h + i + 1) * dh];
+                    let new_v = &q[(2 * h + i) * dh..(2 * h + i + 1) * dh];
                     k[col..col + dh].copy_from_slice(new_k);
                     v[col..col + dh].copy_from_slice(new_v);
-                    attend(
-                        &q[head * dh..(head + 1) * dh],
+                    let head = Head {
+                        q: &q[i * dh..(i + 1) * dh],
                         k,
                         v,
-                        lens[r] + 1,
+                        len: lens[r] + 1,
                         scale,
-                        &mut scores,
-                        &mut out[head * dh..(head + 1) * dh],
-                    );
+                    };
+                    attend(head, &mut scores, &mut out[i * dh..(i + 1) * dh]);
                 }
             }
         };
