@@ -583,6 +583,17 @@ fn start_up_errors_are_typed() {
         matches!(&e, InferError::Contract { problem, .. } if problem.contains("part")),
         "{e}"
     );
+    // Same dimensions and contract, another model's weights: caught by running both.
+    std::fs::copy(
+        fixture().join("foreign_step/decoder_step.onnx"),
+        &files.step,
+    )
+    .unwrap();
+    let e = load_err(&rt, &files);
+    assert!(
+        matches!(&e, InferError::Contract { problem, .. } if problem.contains("not the same model")),
+        "{e}"
+    );
     std::fs::remove_file(&files.step).unwrap();
     let m = SkeletonModel::load(&rt, &files, &SessionConfig::default()).unwrap();
     assert!(

@@ -18,6 +18,7 @@
 //! # Ok::<(), InferError>(())
 //! ```
 
+mod agreement;
 mod attention;
 mod attention_op;
 mod backend;

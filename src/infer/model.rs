@@ -564,7 +564,8 @@ impl SkeletonModel {
         } else {
             None
         };
-        Ok(SkeletonModel {
+        let has_step = step.is_some();
+        let mut model = SkeletonModel {
             encoder: Some(PointEncoder {
                 session: encoder,
                 info: info.clone(),
@@ -576,7 +577,11 @@ impl SkeletonModel {
             past_names,
             new_names,
             present_names,
-        })
+        };
+        if has_step {
+            model.check_step_agrees()?;
+        }
+        Ok(model)
     }
 
     /// Whether decode steps can run ragged ([`SkeletonModel::decode_step_ragged`]).
