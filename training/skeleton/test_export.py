@@ -117,6 +117,40 @@ def test_unwritten_capacity_is_invisible():
     assert np.abs(got - ref).max() < 1e-5
 
 
+def test_step_flavours_differ_only_in_attention():
+    """The exported step uses rigserve's attention op; its GroupQueryAttention twin (what
+    stock onnxruntime runs) has the same weights and nodes, and converting back and forth
+    gives that twin; a changed weight is caught."""
+    import shutil
+
+    import onnx
+    from onnx import numpy_helper
+
+    from .step_graph import STEP_FILE, attention_of, build, convert, same_but_attention
+
+    model, d = _exported()
+    shipped = os.path.join(d, STEP_FILE)
+    assert attention_of(shipped) == "rigserve"
+    tmp = tempfile.mkdtemp(prefix="skel_step_")
+    twin = build(model, os.path.join(tmp, "gqa.onnx"), attention="gqa")
+    same_but_attention(shipped, twin)
+    back = shutil.copy(shipped, os.path.join(tmp, "back.onnx"))
+    convert(back, "gqa")
+    assert attention_of(back) == "gqa"
+    same_but_attention(back, twin)
+    m = onnx.load(back)
+    for t in m.graph.initializer:
+        if t.name == "head.w":
+            t.CopyFrom(numpy_helper.from_array(numpy_helper.to_array(t) * 1.01, t.name))
+    onnx.save(m, back)
+    try:
+        same_but_attention(back, twin)
+    except AssertionError:
+        pass
+    else:
+        raise AssertionError("a changed weight went unnoticed")
+
+
 def test_export_matches_torch_and_cache():
     model, d = _exported()
     res = check(model, d, steps=10, n_points=256)
