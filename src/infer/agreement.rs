@@ -71,7 +71,7 @@ impl SkeletonModel {
                 0.0f32,
                 |m, d| if d.is_nan() { f32::INFINITY } else { m.max(d) },
             );
-        if !(diff <= TOLERANCE * (hi - lo).max(1e-3)) {
+        if diff > TOLERANCE * (hi - lo).max(1e-3) {
             return Err(InferError::Contract {
                 path: step,
                 problem: format!(
