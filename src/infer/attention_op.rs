@@ -7,6 +7,10 @@
 //! `seqlens_k`), with the per-head loop of [`super::attention::attend`]. When the present
 //! output is bound to the past input's buffer (the server binds them so), the new column
 //! is written in place and nothing else is touched; otherwise the past is copied first.
+//!
+//! One difference: the cache may hold more rows (slots) than the batch. Rows past the
+//! batch are left as they are, so a cache can keep spare slots for rows that join later
+//! without running them every step (`GroupQueryAttention` needs the two equal).
 
 use super::attention::{attend, Head};
 use ort::operator::{
@@ -101,20 +105,22 @@ impl Kernel for RaggedAttentionKernel {
         let (vs, past_v) = past_v_in.try_extract_tensor::<f32>()?;
         let (_, lens) = lens_in.try_extract_tensor::<i32>()?;
         let (h, dims) = (self.heads, ps.to_vec());
-        let [b, hh, cols, dh] = dims[..] else {
+        let [slots, hh, cols, dh] = dims[..] else {
             return Err(fail(format!(
-                "past key of shape {ps:?}, want (B, H, C, dh)"
+                "past key of shape {ps:?}, want (slots, H, C, dh)"
             )));
         };
-        let (b, cols, dh) = (b as usize, cols as usize, dh as usize);
+        let (slots, cols, dh) = (slots as usize, cols as usize, dh as usize);
         if hh as usize != h || vs.to_vec() != dims || dh == 0 {
             return Err(fail(format!(
                 "past key {ps:?} and value {vs:?} for {h} heads"
             )));
         }
-        if qs.to_vec() != [b as i64, 1, (3 * h * dh) as i64] {
+        // The batch is the rows of qkv; the cache may hold more (spare slots), untouched.
+        let b = qs.first().copied().unwrap_or(0) as usize;
+        if qs.to_vec() != [b as i64, 1, (3 * h * dh) as i64] || b > slots {
             return Err(fail(format!(
-                "qkv of shape {qs:?}, want ({b}, 1, {})",
+                "qkv of shape {qs:?}, want (B ≤ {slots}, 1, {})",
                 3 * h * dh
             )));
         }
@@ -136,9 +142,9 @@ impl Kernel for RaggedAttentionKernel {
             }
         }
         let lens: Vec<usize> = lens.iter().map(|&n| n as usize).collect();
-        let n = b * h * cols * dh;
+        let n = slots * h * cols * dh;
         let (pk, pv) = (past_k.as_ptr(), past_v.as_ptr());
-        let shape = [b, h, cols, dh];
+        let shape = [slots, h, cols, dh];
         let present = |i: usize| -> ort::Result<Shared> {
             let mut v = ctx
                 .output(i, shape)?

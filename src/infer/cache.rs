@@ -42,11 +42,11 @@ impl DecodeCache {
     }
 
     /// Cache positions the next step reads: every row × column of a dense cache, each
-    /// row's own length (and one per dead slot) of a ragged one.
+    /// row's own length (and one per dead slot that runs) of a ragged one.
     pub(crate) fn read_positions(&self) -> usize {
         match self {
             DecodeCache::Dense(c) => c.batch() * c.capacity(),
-            DecodeCache::Ragged(c) => c.real_positions() + (c.slots() - c.batch()),
+            DecodeCache::Ragged(c) => c.real_positions() + (c.step_rows() - c.batch()),
         }
     }
 

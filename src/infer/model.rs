@@ -169,6 +169,9 @@ pub struct SkeletonModel {
     decoder: Session,
     /// `decoder_step.onnx` when the folder has one.
     step: Option<Session>,
+    /// Its attention takes a cache of more rows than the batch (rigserve's op; metadata
+    /// `rigserve.attention`), so ragged caches keep spare slots.
+    step_spare_slots: bool,
     info: ModelInfo,
     files: ModelFiles,
     past_names: Vec<String>,
@@ -208,6 +211,11 @@ fn open_session_with(
         path: path.to_path_buf(),
         message: m,
     };
+    // ONNX Runtime adds a custom domain to a process-wide schema map while it builds the
+    // session, and two sessions doing so at once fail with "domain already exist": so
+    // sessions with rigserve's operators are built one at a time.
+    static CUSTOM_OPS: std::sync::Mutex<()> = std::sync::Mutex::new(());
+    let _one_at_a_time = custom_ops.then(|| CUSTOM_OPS.lock().unwrap_or_else(|e| e.into_inner()));
     let mut builder = Session::builder(rt.env()).map_err(|e| load(e.to_string()))?;
     if custom_ops {
         let ops = super::attention_op::operators().map_err(|e| load(e.to_string()))?;
@@ -565,6 +573,12 @@ impl SkeletonModel {
             None
         };
         let has_step = step.is_some();
+        let step_spare_slots = step.as_ref().is_some_and(|s| {
+            s.metadata()
+                .ok()
+                .and_then(|m| m.custom("rigserve.attention"))
+                .is_some_and(|a| a == "rigserve")
+        });
         let mut model = SkeletonModel {
             encoder: Some(PointEncoder {
                 session: encoder,
@@ -572,6 +586,7 @@ impl SkeletonModel {
             }),
             decoder,
             step,
+            step_spare_slots,
             info,
             files: files.clone(),
             past_names,
@@ -735,8 +750,9 @@ impl SkeletonModel {
             ));
         };
         cache.reserve_step()?;
-        let slots = cache.slots();
-        // Dead slots run as one-position rows whose logits are dropped.
+        let slots = cache.step_rows();
+        // Dead slots (GroupQueryAttention only) run as one-position rows whose logits are
+        // dropped; spare slots past the rows the step runs are not touched.
         let mut ids = vec![0i64; slots];
         let mut pos = vec![0i64; slots];
         let mut seqlens = vec![0i32; slots];
@@ -812,6 +828,7 @@ impl SkeletonModel {
             self.info.n_heads,
             self.info.head_dim,
         )
+        .spare_slots(self.step_spare_slots)
     }
 
     /// Next-token logits for whole sequences without a cache (the reference the cached

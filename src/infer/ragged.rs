@@ -6,9 +6,13 @@
 //! dh), bound as both the past input and the present output of the step, so the
 //! attention op writes each row's new key and value into column `len[row]` in place and
 //! nothing is copied per step. Row `r`'s positions are columns `0..len[r]` (right
-//! padding). Slots `rows..slots` are dead: a row that left and was not yet compacted
-//! away. They still run (one position each, their logits dropped) until the slack is worth
-//! a relayout, which is cheaper than resizing the tensors every time a row finishes.
+//! padding). Slots `rows..slots` are spare: a row that left, or room for rows to come.
+//! With rigserve's attention op ([`RaggedKv::spare_slots`]) the step runs the live rows
+//! only and leaves the rest of the cache alone, so rows join into spare slots and leave
+//! without a relayout. `GroupQueryAttention` needs the cache and the batch to have the
+//! same rows: there the spare slots are dead rows that still run (one position each, their
+//! logits dropped) until the slack is worth a relayout, which is cheaper than resizing the
+//! tensors every time a row finishes.
 
 use super::kv::{fill_moves, KvCache, GROW};
 use super::InferError;
@@ -42,6 +46,8 @@ pub struct RaggedKv {
     /// Per live row: written positions, and the position id of its next token.
     len: Vec<usize>,
     next_pos: Vec<i64>,
+    /// The step runs the live rows only (spare slots cost nothing per step).
+    spare: bool,
 }
 
 impl std::fmt::Debug for RaggedKv {
@@ -65,6 +71,34 @@ impl RaggedKv {
             cols: 0,
             len: Vec::new(),
             next_pos: Vec::new(),
+            spare: false,
+        }
+    }
+
+    /// For a step whose attention op takes a cache of more rows than the batch
+    /// (`ai.rigserve.RaggedAttention`): rows then join into spare slots without a
+    /// relayout, and only live rows run.
+    pub fn spare_slots(mut self, spare: bool) -> RaggedKv {
+        self.spare = spare;
+        self
+    }
+
+    /// Rows a step runs: the live rows, and with `GroupQueryAttention` the dead slots
+    /// after them.
+    pub fn step_rows(&self) -> usize {
+        if self.spare {
+            self.batch()
+        } else {
+            self.slots
+        }
+    }
+
+    /// Slots for `rows` live rows: room for half as many again when spare slots are free.
+    fn slots_for(&self, rows: usize) -> usize {
+        if self.spare {
+            rows + (rows / 2).max(4)
+        } else {
+            rows
         }
     }
 
@@ -73,7 +107,7 @@ impl RaggedKv {
         self.len.len()
     }
 
-    /// Rows the step runs: the live rows and the dead slots after them.
+    /// Allocated rows: the live rows and the spare slots after them.
     pub fn slots(&self) -> usize {
         self.slots
     }
@@ -169,7 +203,12 @@ impl RaggedKv {
             } else {
                 self.cols
             };
-            self.relayout(need_rows, cols)?;
+            let slots = if need_rows > self.slots {
+                self.slots_for(need_rows)
+            } else {
+                self.slots
+            };
+            self.relayout(slots, cols)?;
         }
         let plane = self.plane();
         let src_plane = src.capacity() * dh;
@@ -230,15 +269,21 @@ impl RaggedKv {
         self.len.truncate(n);
         self.next_pos.truncate(n);
         if n == 0 {
-            *self = RaggedKv::empty(self.n_tensors, self.heads, self.head_dim);
+            *self =
+                RaggedKv::empty(self.n_tensors, self.heads, self.head_dim).spare_slots(self.spare);
             return Ok(order);
         }
-        // Dead slots still run each step, and unused columns still take memory: compact
-        // once either slack is large enough to be worth one copy of the live rows.
+        // Dead slots that run each step, or spare slots and columns that only take memory:
+        // compact once the slack is large enough to be worth one copy of the live rows.
         let dead = self.slots - n;
         let need = self.len.iter().copied().max().unwrap_or(0) + 1;
-        if dead >= 2.max(self.slots / 4) || self.cols >= 2 * need + 2 * GROW {
-            self.relayout(n, with_headroom(need))?;
+        let too_many = if self.spare {
+            self.slots > 2 * n + 8
+        } else {
+            dead >= 2.max(self.slots / 4)
+        };
+        if too_many || self.cols >= 2 * need + 2 * GROW {
+            self.relayout(self.slots_for(n), with_headroom(need))?;
         }
         Ok(order)
     }
@@ -317,5 +362,37 @@ mod tests {
         }
         assert_eq!(c.lens(), &[5 + 2 * GROW; 4]);
         assert_eq!(value(&c, 0, 3, 4), 4.0);
+    }
+
+    #[test]
+    fn spare_slots_take_joining_rows_and_do_not_run() {
+        if !ort_available() {
+            eprintln!("skipped: ONNX Runtime not found");
+            return;
+        }
+        let mut c = RaggedKv::empty(2, 2, 3).spare_slots(true);
+        let src = source(&[&[1, 1, 1, 0], &[1, 1, 1, 1]]);
+        c.append_rows(&src, &[0, 1]).unwrap();
+        let (slots, cols) = (c.slots(), c.capacity());
+        assert!(slots > 2, "room for rows to come");
+        assert_eq!(c.step_rows(), 2, "only live rows run");
+        c.advance();
+        // A row joins into a spare slot: same tensors, no relayout.
+        let before = c.tensors[0].extract_tensor().1.as_ptr();
+        c.append_rows(&src, &[1]).unwrap();
+        assert_eq!((c.slots(), c.capacity()), (slots, cols));
+        assert_eq!(c.tensors[0].extract_tensor().1.as_ptr(), before);
+        assert_eq!(c.lens(), &[4, 5, 4]);
+        assert_eq!(value(&c, 1, 2, 3), 1003.0);
+        // Leaving moves the last row into the hole, still in place.
+        c.retain(&[1, 2]).unwrap();
+        assert_eq!((c.batch(), c.step_rows(), c.slots()), (2, 2, slots));
+        assert_eq!(c.lens(), &[4, 5]);
+        assert_eq!(
+            value(&c, 1, 0, 3),
+            1003.0,
+            "the joined row moved into slot 0"
+        );
+        assert_eq!(c.tensors[0].extract_tensor().1.as_ptr(), before);
     }
 }

@@ -39,6 +39,11 @@ STEP_FILE = "decoder_step.onnx"
 CONTRACT = "skeleton-v2"
 # The attention op of each flavour: (op_type, domain).
 ATTENTION = {"rigserve": ("RaggedAttention", "ai.rigserve"), "gqa": ("GroupQueryAttention", "com.microsoft")}
+# The cache tensors' first axis: rigserve's op lets the cache hold more rows ("slots") than
+# the batch, GroupQueryAttention needs them equal ("batch", the name the other inputs use).
+CACHE_ROWS = {"rigserve": "slots", "gqa": "batch"}
+# Metadata naming the flavour, which tells the server whether the cache may have spare slots.
+ATTENTION_KEY = "rigserve.attention"
 
 
 def step_io_names(n_layers: int):
@@ -108,7 +113,7 @@ def build(model: M.SkeletonModel, path: str, attention: str = "rigserve") -> str
     linear(xf, dec.head, "head", "logits")
 
     ins, outs = step_io_names(n)
-    cache = ["batch", h, "capacity", dh]
+    cache = [CACHE_ROWS[attention], h, "capacity", dh]
     inputs = [
         helper.make_tensor_value_info("input_ids", TensorProto.INT64, ["batch", 1]),
         helper.make_tensor_value_info("position_ids", TensorProto.INT64, ["batch", 1]),
@@ -127,6 +132,7 @@ def build(model: M.SkeletonModel, path: str, attention: str = "rigserve") -> str
         "rigserve.contract": CONTRACT, "rigserve.part": "decoder_step", "d_model": cfg.d_model,
         "n_latents": cfg.n_latents, "n_layers": n, "n_heads": h, "head_dim": dh, "vocab_size": cfg.vocab_size,
         "max_positions": cfg.max_positions, "max_tokens": cfg.max_tokens, "rigserve.config": json.dumps(cfg.to_dict()),
+        ATTENTION_KEY: attention,
     }
     for k, v in meta.items():
         e = m.metadata_props.add()
@@ -166,6 +172,12 @@ def convert(path: str, attention: str = "rigserve") -> str:
         n.CopyFrom(new)
     if attention != "gqa" and all(o.domain != op_domain for o in m.opset_import):
         m.opset_import.append(helper.make_opsetid(op_domain, 1))
+    for v in list(m.graph.input) + list(m.graph.output):
+        if v.name.startswith(("past_key_values.", "present.")):
+            v.type.tensor_type.shape.dim[0].dim_param = CACHE_ROWS[attention]
+    meta = {p.key: p for p in m.metadata_props}
+    entry = meta.get(ATTENTION_KEY) or m.metadata_props.add()
+    entry.key, entry.value = ATTENTION_KEY, attention
     onnx.save(m, path)
     return path
 
@@ -188,7 +200,10 @@ def same_but_attention(a_path: str, b_path: str) -> None:
     wb = {t.name: numpy_helper.to_array(t) for t in b.initializer}
     if wa.keys() != wb.keys() or any(not np.array_equal(wa[k], wb[k]) for k in wa):
         raise AssertionError(f"{a_path} and {b_path} have different weights")
-    if [str(x) for x in a.input] != [str(x) for x in b.input] or [str(x) for x in a.output] != [str(x) for x in b.output]:
+    def io(g):  # names, types and ranks (the first axis is named after the flavour)
+        return [(x.name, x.type.tensor_type.elem_type, len(x.type.tensor_type.shape.dim)) for x in [*g.input, *g.output]]
+
+    if io(a) != io(b):
         raise AssertionError(f"{a_path} and {b_path} have different inputs or outputs")
 
 
