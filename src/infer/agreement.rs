@@ -40,24 +40,25 @@ impl SkeletonModel {
                 message: format!("a first run at start-up failed: {e}"),
             }
         };
-        let (decoder, step) = (self.files().decoder.clone(), self.files().step.clone());
+        let files = self.files().clone();
+        let (decoder, step) = (&files.decoder, &files.step);
         let prefix = self
             .encode(&probe_points(64))
-            .map_err(failed(&self.files().encoder.clone()))?;
+            .map_err(failed(&files.encoder))?;
         let (logits, mut dense) = self
             .prefill(&prefix, &[&[BOS, CLS_NONE]])
-            .map_err(failed(&decoder))?;
+            .map_err(failed(decoder))?;
         let token = (0..logits.ncols())
             .max_by(|&a, &b| logits[[0, a]].total_cmp(&logits[[0, b]]))
             .unwrap_or(0) as u32;
         let mut ragged = self.empty_ragged();
-        ragged.append_rows(&dense, &[0]).map_err(failed(&step))?;
+        ragged.append_rows(&dense, &[0]).map_err(failed(step))?;
         let want = self
             .decode_step(&[token], &mut dense)
-            .map_err(failed(&decoder))?;
+            .map_err(failed(decoder))?;
         let got = self
             .decode_step_ragged(&[token], &mut ragged)
-            .map_err(failed(&step))?;
+            .map_err(failed(step))?;
         let (lo, hi) = want
             .iter()
             .fold((f32::INFINITY, f32::NEG_INFINITY), |(l, h), &x| {
@@ -73,7 +74,7 @@ impl SkeletonModel {
             );
         if diff > TOLERANCE * (hi - lo).max(1e-3) {
             return Err(InferError::Contract {
-                path: step,
+                path: step.clone(),
                 problem: format!(
                     "its logits disagree with the decoder's (max difference {diff:.3} on a \
                      range of {:.3}): the two files are not the same model",

@@ -194,11 +194,6 @@ impl Kernel for RaggedAttentionKernel {
                 }
             }
         };
-        if b == 1 {
-            row(0);
-            Ok(())
-        } else {
-            ctx.par_for(b, 0, row)
-        }
+        ctx.par_for(b, 0, row)
     }
 }

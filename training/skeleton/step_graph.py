@@ -46,6 +46,17 @@ CACHE_ROWS = {"rigserve": "slots", "gqa": "batch"}
 ATTENTION_KEY = "rigserve.attention"
 
 
+def attention_node(attention: str, qkv: str, past: list, outputs: list, heads: int, scale: float):
+    """One layer's attention node of the given flavour. `past` is (past key, past value,
+    seqlens_k, total_sequence_length); GQA's separate key and value inputs stay empty, as
+    q, k and v come packed."""
+    op_type, op_domain = ATTENTION[attention]
+    if attention == "gqa":
+        return helper.make_node(op_type, [qkv, "", "", *past], outputs, domain=op_domain, scale=scale,
+                                num_heads=heads, kv_num_heads=heads)
+    return helper.make_node(op_type, [qkv, *past], outputs, domain=op_domain, scale=scale, num_heads=heads)
+
+
 def step_io_names(n_layers: int):
     past = [f"past_key_values.{i}.{kv}" for i in range(n_layers) for kv in ("key", "value")]
     present = [f"present.{i}.{kv}" for i in range(n_layers) for kv in ("key", "value")]
@@ -53,7 +64,7 @@ def step_io_names(n_layers: int):
 
 
 def build(model: M.SkeletonModel, path: str, attention: str = "rigserve") -> str:
-    op_type, op_domain = ATTENTION[attention]
+    op_domain = ATTENTION[attention][1]
     cfg = model.cfg
     dec = model.decoder
     d, h, dh, n = cfg.d_model, cfg.n_heads, cfg.head_dim, cfg.dec_layers
@@ -94,12 +105,8 @@ def build(model: M.SkeletonModel, path: str, attention: str = "rigserve") -> str
         nodes.append(helper.make_node("MatMul", [hn, const(f"{p}.qkv.w", w)], [f"{p}.qkv.mm"]))
         nodes.append(helper.make_node("Add", [f"{p}.qkv.mm", const(f"{p}.qkv.b", b)], [f"{p}.qkv"]))
         past = [f"past_key_values.{i}.key", f"past_key_values.{i}.value", "seqlens_k", "total_sequence_length"]
-        # GQA's separate key and value inputs stay empty: q, k and v come packed.
-        att_in = [f"{p}.qkv", "", "", *past] if attention == "gqa" else [f"{p}.qkv", *past]
-        heads = {"num_heads": h, "kv_num_heads": h} if attention == "gqa" else {"num_heads": h}
-        nodes.append(helper.make_node(
-            op_type, att_in, [f"{p}.att", f"present.{i}.key", f"present.{i}.value"],
-            domain=op_domain, scale=1.0 / float(np.sqrt(dh)), **heads))
+        nodes.append(attention_node(attention, f"{p}.qkv", past, [f"{p}.att", f"present.{i}.key", f"present.{i}.value"],
+                                    h, 1.0 / float(np.sqrt(dh))))
         o = linear(f"{p}.att", a.o, f"{p}.o", f"{p}.o.out")
         nodes.append(helper.make_node("Add", [x, o], [f"{p}.x1"]))
         h2 = layer_norm(f"{p}.x1", layer.ln2, f"{p}.ln2", f"{p}.h2")
@@ -159,17 +166,14 @@ def convert(path: str, attention: str = "rigserve") -> str:
     import onnx
 
     m = onnx.load(path)
-    op_type, op_domain = ATTENTION[attention]
+    op_domain = ATTENTION[attention][1]
     for n in m.graph.node:
         if (n.op_type, n.domain) not in ATTENTION.values():
             continue
         real = [x for x in n.input if x]  # qkv, past key, past value, seqlens_k, total length
         scale = next(a.f for a in n.attribute if a.name == "scale")
         heads = next(a.i for a in n.attribute if a.name == "num_heads")
-        new = helper.make_node(op_type, ([real[0], "", "", *real[1:]] if attention == "gqa" else real), list(n.output),
-                               domain=op_domain, scale=scale, num_heads=heads,
-                               **({"kv_num_heads": heads} if attention == "gqa" else {}))
-        n.CopyFrom(new)
+        n.CopyFrom(attention_node(attention, real[0], real[1:], list(n.output), heads, scale))
     if attention != "gqa" and all(o.domain != op_domain for o in m.opset_import):
         m.opset_import.append(helper.make_opsetid(op_domain, 1))
     for v in list(m.graph.input) + list(m.graph.output):
