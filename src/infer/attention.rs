@@ -51,10 +51,18 @@ pub fn attend(head: Head, scores: &mut [f32], out: &mut [f32]) {
     );
     assert_eq!(out.len(), dh);
     #[cfg(target_arch = "x86_64")]
-    if dh == 32 && std::arch::is_x86_feature_detected!("avx512f") {
-        // SAFETY: the feature was detected, and the asserts above bound every access.
-        unsafe { avx512::attend32(head, scores, out) };
-        return;
+    if dh == 32 {
+        if std::arch::is_x86_feature_detected!("avx512f") {
+            // SAFETY: the feature was detected, and the asserts above bound every access.
+            unsafe { avx512::attend32(head, scores, out) };
+            return;
+        }
+        if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma")
+        {
+            // SAFETY: as above.
+            unsafe { avx2::attend32(head, scores, out) };
+            return;
+        }
     }
     portable(head, scores, out);
 }
@@ -99,145 +107,9 @@ fn softmax_in_place(scores: &mut [f32]) -> f32 {
 }
 
 #[cfg(target_arch = "x86_64")]
-mod avx512 {
-    use std::arch::x86_64::*;
-
-    /// Sixteen vectors to the vector of their sums (lane l = the sum of `v[l]`): pairs
-    /// within 128-bit lanes, then quads, then across lanes; 45 instructions where one
-    /// horizontal sum per vector takes 8 dependent ones.
-    #[target_feature(enable = "avx512f")]
-    unsafe fn sums16(v: &[__m512; 16]) -> __m512 {
-        let mut a = [_mm512_setzero_ps(); 8];
-        for (i, a) in a.iter_mut().enumerate() {
-            let (x, y) = (v[2 * i], v[2 * i + 1]);
-            *a = _mm512_add_ps(_mm512_unpacklo_ps(x, y), _mm512_unpackhi_ps(x, y));
-        }
-        let mut b = [_mm512_setzero_ps(); 4];
-        for (i, b) in b.iter_mut().enumerate() {
-            let (x, y) = (_mm512_castps_pd(a[2 * i]), _mm512_castps_pd(a[2 * i + 1]));
-            // Moved as pairs (the casts), added as floats.
-            *b = _mm512_add_ps(
-                _mm512_castpd_ps(_mm512_unpacklo_pd(x, y)),
-                _mm512_castpd_ps(_mm512_unpackhi_pd(x, y)),
-            );
-        }
-        // b[i], 128-bit lane L: lane L's partial sums of v[4i..4i+4].
-        let d0 = _mm512_add_ps(
-            _mm512_shuffle_f32x4::<0x88>(b[0], b[1]),
-            _mm512_shuffle_f32x4::<0xDD>(b[0], b[1]),
-        );
-        let d1 = _mm512_add_ps(
-            _mm512_shuffle_f32x4::<0x88>(b[2], b[3]),
-            _mm512_shuffle_f32x4::<0xDD>(b[2], b[3]),
-        );
-        _mm512_add_ps(
-            _mm512_shuffle_f32x4::<0x88>(d0, d1),
-            _mm512_shuffle_f32x4::<0xDD>(d0, d1),
-        )
-    }
-
-    /// [`super::exp_neg`] on 16 lanes, with `vscalefps` for the 2ⁿ.
-    #[target_feature(enable = "avx512f")]
-    unsafe fn exp16(x: __m512) -> __m512 {
-        let x = _mm512_max_ps(x, _mm512_set1_ps(-87.0));
-        let n = _mm512_roundscale_ps::<0x08>(_mm512_mul_ps(
-            x,
-            _mm512_set1_ps(std::f32::consts::LOG2_E),
-        ));
-        let r = _mm512_fnmadd_ps(n, _mm512_set1_ps(super::LN2_HI), x);
-        let r = _mm512_fnmadd_ps(n, _mm512_set1_ps(super::LN2_LO), r);
-        let mut p = _mm512_set1_ps(1.0 / 720.0);
-        for c in [1.0 / 120.0, 1.0 / 24.0, 1.0 / 6.0, 0.5, 1.0, 1.0] {
-            p = _mm512_fmadd_ps(p, r, _mm512_set1_ps(c));
-        }
-        _mm512_scalef_ps(p, n)
-    }
-
-    /// Exponentiates `s - max(s)` in place; returns 1 / their sum.
-    #[target_feature(enable = "avx512f")]
-    unsafe fn softmax(s: &mut [f32]) -> f32 {
-        let (n, p) = (s.len(), s.as_mut_ptr());
-        let tail = |j: usize| -> __mmask16 { ((1u32 << (n - j).min(16)) - 1) as __mmask16 };
-        let mut m = _mm512_set1_ps(f32::NEG_INFINITY);
-        for j in (0..n).step_by(16) {
-            m = _mm512_mask_max_ps(m, tail(j), m, _mm512_maskz_loadu_ps(tail(j), p.add(j)));
-        }
-        let m = _mm512_set1_ps(_mm512_reduce_max_ps(m));
-        let mut z = _mm512_setzero_ps();
-        for j in (0..n).step_by(16) {
-            let k = tail(j);
-            let e = exp16(_mm512_sub_ps(_mm512_maskz_loadu_ps(k, p.add(j)), m));
-            _mm512_mask_storeu_ps(p.add(j), k, e);
-            z = _mm512_mask_add_ps(z, k, z, e);
-        }
-        1.0 / _mm512_reduce_add_ps(z)
-    }
-
-    #[cfg(test)]
-    pub(super) fn sums16_of(x: &[f32; 256]) -> [f32; 16] {
-        let mut out = [0.0; 16];
-        // SAFETY: test-only, on a machine with the feature (checked by the caller).
-        unsafe {
-            let v: [__m512; 16] = std::array::from_fn(|i| _mm512_loadu_ps(x.as_ptr().add(16 * i)));
-            _mm512_storeu_ps(out.as_mut_ptr(), sums16(&v));
-        }
-        out
-    }
-
-    /// [`super::attend`] for 32-wide heads: a key or value row is two 16-lane registers.
-    #[target_feature(enable = "avx512f")]
-    pub(super) unsafe fn attend32(head: super::Head, scores: &mut [f32], out: &mut [f32]) {
-        let super::Head {
-            q,
-            k,
-            v,
-            len,
-            scale,
-        } = head;
-        let sc = _mm512_set1_ps(scale);
-        let q0 = _mm512_mul_ps(_mm512_loadu_ps(q.as_ptr()), sc);
-        let q1 = _mm512_mul_ps(_mm512_loadu_ps(q.as_ptr().add(16)), sc);
-        let (kp, vp, sp) = (k.as_ptr(), v.as_ptr(), scores.as_mut_ptr());
-        let dot = |j: usize| {
-            let r = kp.add(32 * j);
-            _mm512_fmadd_ps(
-                q1,
-                _mm512_loadu_ps(r.add(16)),
-                _mm512_mul_ps(q0, _mm512_loadu_ps(r)),
-            )
-        };
-        let full = len / 16 * 16;
-        for j in (0..full).step_by(16) {
-            let mut p = [_mm512_setzero_ps(); 16];
-            for (l, p) in p.iter_mut().enumerate() {
-                *p = dot(j + l);
-            }
-            _mm512_storeu_ps(sp.add(j), sums16(&p));
-        }
-        for j in full..len {
-            *sp.add(j) = _mm512_reduce_add_ps(dot(j));
-        }
-        let inv = softmax(&mut scores[..len]);
-        // Four accumulator pairs: one pair would wait on its own multiply-add every key.
-        let mut o = [_mm512_setzero_ps(); 8];
-        let mut j = 0;
-        while j < len {
-            let u = (len - j).min(4);
-            for t in 0..u {
-                let p = _mm512_set1_ps(*sp.add(j + t));
-                let r = vp.add(32 * (j + t));
-                o[2 * t] = _mm512_fmadd_ps(p, _mm512_loadu_ps(r), o[2 * t]);
-                o[2 * t + 1] = _mm512_fmadd_ps(p, _mm512_loadu_ps(r.add(16)), o[2 * t + 1]);
-            }
-            j += u;
-        }
-        let inv = _mm512_set1_ps(inv);
-        let lo = _mm512_add_ps(_mm512_add_ps(o[0], o[2]), _mm512_add_ps(o[4], o[6]));
-        let hi = _mm512_add_ps(_mm512_add_ps(o[1], o[3]), _mm512_add_ps(o[5], o[7]));
-        _mm512_storeu_ps(out.as_mut_ptr(), _mm512_mul_ps(lo, inv));
-        _mm512_storeu_ps(out.as_mut_ptr().add(16), _mm512_mul_ps(hi, inv));
-    }
-}
+mod avx2;
+#[cfg(target_arch = "x86_64")]
+mod avx512;
 
 #[cfg(test)]
 mod tests {
@@ -274,6 +146,27 @@ mod tests {
             .collect()
     }
 
+    type Kernel = fn(Head, &mut [f32], &mut [f32]);
+
+    /// The 32-wide kernels this CPU can run, called directly (`attend` picks only one).
+    fn simd_kernels() -> Vec<(&'static str, Kernel)> {
+        #[allow(unused_mut)]
+        let mut found: Vec<(&'static str, Kernel)> = Vec::new();
+        #[cfg(target_arch = "x86_64")]
+        {
+            use std::arch::is_x86_feature_detected as has;
+            if has!("avx512f") {
+                // SAFETY: detected just above.
+                found.push(("avx512", |h, s, o| unsafe { avx512::attend32(h, s, o) }));
+            }
+            if has!("avx2") && has!("fma") {
+                // SAFETY: detected just above.
+                found.push(("avx2", |h, s, o| unsafe { avx2::attend32(h, s, o) }));
+            }
+        }
+        found
+    }
+
     #[test]
     fn exp_is_accurate_over_the_softmax_range() {
         for i in 0..=8700 {
@@ -290,7 +183,7 @@ mod tests {
     #[test]
     fn matches_the_textbook_formula_for_every_width_and_length() {
         for dh in [32, 8, 5] {
-            for len in [1, 2, 17, 300] {
+            for len in [1, 2, 8, 16, 17, 300] {
                 let (q, k, v) = (filled(dh, 1), filled(len * dh, 2), filled(len * dh, 3));
                 let mut scores = vec![0.0; len];
                 let mut out = vec![0.0; dh];
@@ -302,18 +195,23 @@ mod tests {
                     len,
                     scale,
                 };
-                attend(head, &mut scores, &mut out);
                 let want = reference(&q, &k, &v, len, scale);
-                let mut port = vec![0.0; dh];
-                portable(head, &mut scores, &mut port);
-                for d in 0..dh {
-                    assert!(
-                        (out[d] as f64 - want[d]).abs() < 2e-5,
-                        "dh {dh} len {len}: {} vs {}",
-                        out[d],
-                        want[d]
-                    );
-                    assert!((port[d] as f64 - want[d]).abs() < 2e-5);
+                let mut kernels: Vec<(&str, Kernel)> =
+                    vec![("attend", attend), ("portable", portable)];
+                if dh == 32 {
+                    kernels.extend(simd_kernels());
+                }
+                for (name, kernel) in kernels {
+                    out.fill(f32::NAN);
+                    kernel(head, &mut scores, &mut out);
+                    for d in 0..dh {
+                        assert!(
+                            (out[d] as f64 - want[d]).abs() < 2e-5,
+                            "{name}, dh {dh} len {len}: {} vs {}",
+                            out[d],
+                            want[d]
+                        );
+                    }
                 }
             }
         }
@@ -331,6 +229,25 @@ mod tests {
             assert_eq!(
                 got[l],
                 x[16 * l..16 * l + 16].iter().sum::<f32>(),
+                "lane {l}: {got:?}"
+            );
+        }
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[test]
+    fn eight_sums_at_once() {
+        if !(std::arch::is_x86_feature_detected!("avx2")
+            && std::arch::is_x86_feature_detected!("fma"))
+        {
+            return;
+        }
+        let x: [f32; 64] = std::array::from_fn(|i| (i * i % 97) as f32);
+        let got = avx2::sums8_of(&x);
+        for l in 0..8 {
+            assert_eq!(
+                got[l],
+                x[8 * l..8 * l + 8].iter().sum::<f32>(),
                 "lane {l}: {got:?}"
             );
         }
