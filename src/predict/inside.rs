@@ -5,6 +5,7 @@
 //! within reach. Leave-one-out on `train` (`rigserve eval --retrieval --split train`): CD-J2J
 //! 0.0626 -> 0.0617, B2B 0.0556 -> 0.0535; the reach (0.05 to 0.5 tried) matters little.
 
+use super::score::SurfaceModel;
 use super::MeshSamples;
 use crate::rig::Skeleton;
 use glam::Vec3;
@@ -20,8 +21,10 @@ const STEPS: usize = 40;
 /// at a moved child's joint follow it; a leaf's tail moves with its own joint.
 pub fn pull_inside(skel: &mut Skeleton, samples: &MeshSamples) {
     let old: Vec<Vec3> = skel.bones.iter().map(|b| b.head).collect();
-    for b in &mut skel.bones {
-        if let Some(p) = inward(b.head, samples) {
+    // One winding pass tests every joint (the exact sum takes several probes at once).
+    let windings = samples.surface.windings(&old);
+    for (b, w) in skel.bones.iter_mut().zip(windings) {
+        if let Some(p) = inward(b.head, SurfaceModel::inside(w), samples) {
             b.head = p;
         }
     }
@@ -40,8 +43,8 @@ pub fn pull_inside(skel: &mut Skeleton, samples: &MeshSamples) {
 /// Where an outside joint at `q` goes: the midpoint of the first stretch inside the mesh
 /// along the inward normal of the nearest sample; `None` when `q` is inside already, out
 /// of reach, or no stretch inside is found.
-fn inward(q: Vec3, samples: &MeshSamples) -> Option<Vec3> {
-    if samples.surface.is_inside(q) {
+fn inward(q: Vec3, inside: bool, samples: &MeshSamples) -> Option<Vec3> {
+    if inside {
         return None;
     }
     let r = samples.points.iter().min_by(|a, b| {
@@ -52,11 +55,19 @@ fn inward(q: Vec3, samples: &MeshSamples) -> Option<Vec3> {
     if s.distance(q) > REACH {
         return None;
     }
-    let at = |k: usize| s - n * (k as f32 * STEP);
-    let enter = (1..=STEPS).find(|&k| samples.surface.is_inside(at(k)))?;
-    let leave = (enter + 1..=STEPS)
-        .find(|&k| !samples.surface.is_inside(at(k)))
-        .unwrap_or(STEPS + 1);
+    let ray: Vec<Vec3> = (1..=STEPS).map(|k| s - n * (k as f32 * STEP)).collect();
+    let inside: Vec<bool> = samples
+        .surface
+        .windings(&ray)
+        .into_iter()
+        .map(SurfaceModel::inside)
+        .collect();
+    // Steps are numbered from 1.
+    let enter = inside.iter().position(|&i| i)? + 1;
+    let leave = inside[enter..]
+        .iter()
+        .position(|&i| !i)
+        .map_or(STEPS + 1, |k| enter + 1 + k);
     Some(s - n * ((enter + leave - 1) as f32 * 0.5 * STEP))
 }
 

@@ -8,6 +8,7 @@
 pub mod inside;
 pub mod library;
 pub mod score;
+mod winding;
 
 use crate::infer::{Backend, InferError, SamplingParams, SkeletonRequest};
 use crate::mesh::{sample_surface, Mesh, Normalization};

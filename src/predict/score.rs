@@ -5,6 +5,7 @@
 //! of moderate size and estimated from dense oriented samples beyond, so the cost per
 //! candidate stays bounded whatever the mesh's size.
 
+use super::winding::{Dipoles, Triangles};
 use crate::mesh::{sample_surface, Mesh};
 use crate::rig::Skeleton;
 use glam::Vec3;
@@ -43,54 +44,10 @@ const DENSE_SAMPLES: usize = 16_384;
 /// How inside-ness is measured.
 #[derive(Clone, Debug)]
 enum Winding {
-    /// Sum of the triangles' solid angles (Van Oosterom–Strackee).
-    Exact {
-        positions: Vec<Vec3>,
-        triangles: Vec<[u32; 3]>,
-    },
+    /// Sum of the triangles' solid angles.
+    Exact(Triangles),
     /// Point-cloud estimate from area-weighted oriented samples.
-    Points {
-        points: Vec<Vec3>,
-        normals: Vec<Vec3>,
-        /// Surface area each sample stands for.
-        sample_area: f32,
-        /// Softening length², about one sample spacing: without it a probe near a sample
-        /// would be dominated by that one sample.
-        soft2: f32,
-    },
-}
-
-/// `y.atan2(x)` within 2e-7 rad, without libm's call: the exact winding number takes one
-/// per triangle per query point, and under load libm's `atan2f` was 6 % of the server's
-/// CPU. The ratio of the smaller to the larger magnitude goes through an odd degree-15
-/// polynomial fitted to atan on [0, 1], then to its octant and quadrant.
-fn atan2(y: f32, x: f32) -> f32 {
-    const C: [f32; 8] = [
-        0.999_999_34,
-        -0.333_298_6,
-        0.199_465_7,
-        -0.139_086_5,
-        0.096_422_55,
-        -0.055_913_14,
-        0.021_863_535,
-        -0.004_054_730_3,
-    ];
-    let (ax, ay) = (x.abs(), y.abs());
-    let (lo, hi) = (ax.min(ay), ax.max(ay));
-    if hi == 0.0 || hi.is_nan() || lo.is_nan() {
-        return y.atan2(x);
-    }
-    let a = lo / hi;
-    let s = a * a;
-    let p = C.iter().rev().fold(0.0f32, |acc, &c| acc * s + c);
-    let mut r = a * p;
-    if ay > ax {
-        r = std::f32::consts::FRAC_PI_2 - r;
-    }
-    if x < 0.0 {
-        r = std::f32::consts::PI - r;
-    }
-    r.copysign(y)
+    Points(Dipoles),
 }
 
 /// The mesh as the scorer sees it, in the unit frame.
@@ -116,10 +73,7 @@ impl SurfaceModel {
         let centroid = points.iter().copied().sum::<Vec3>() / n;
         let spread = points.iter().map(|p| p.distance(centroid)).sum::<f32>() / n;
         let winding = if unit.triangles.len() <= EXACT_MAX_TRIANGLES {
-            Winding::Exact {
-                positions: unit.positions.clone(),
-                triangles: unit.triangles.clone(),
-            }
+            Winding::Exact(Triangles::new(&unit.positions, &unit.triangles))
         } else {
             let area: f32 = unit
                 .triangles
@@ -131,12 +85,7 @@ impl SurfaceModel {
                 .sum();
             let dense = sample_surface(unit, DENSE_SAMPLES, seed ^ 0x5eed_5eed);
             let sample_area = area / dense.points.len().max(1) as f32;
-            Winding::Points {
-                points: dense.points,
-                normals: dense.normals,
-                sample_area,
-                soft2: sample_area.max(1e-12),
-            }
+            Winding::Points(Dipoles::new(&dense.points, &dense.normals, sample_area))
         };
         let (lo, hi) = unit.bounds();
         let margin = (hi - lo).max_element() * 0.02;
@@ -153,40 +102,24 @@ impl SurfaceModel {
     /// degrades gracefully on meshes with holes, where ray parity breaks. The sign follows
     /// the triangle winding, so callers test the magnitude.
     pub fn winding(&self, q: Vec3) -> f32 {
+        self.windings(&[q])[0]
+    }
+
+    /// [`Self::winding`] at each of `probes`, several at once.
+    pub fn windings(&self, probes: &[Vec3]) -> Vec<f32> {
         match &self.winding {
-            Winding::Exact {
-                positions,
-                triangles,
-            } => {
-                let mut w = 0.0f64;
-                for t in triangles {
-                    let [a, b, c] = t.map(|i| positions[i as usize] - q);
-                    let (la, lb, lc) = (a.length(), b.length(), c.length());
-                    let num = a.dot(b.cross(c));
-                    let den = la * lb * lc + a.dot(b) * lc + b.dot(c) * la + c.dot(a) * lb;
-                    w += atan2(num, den) as f64;
-                }
-                (w / (2.0 * std::f64::consts::PI)) as f32
-            }
-            Winding::Points {
-                points,
-                normals,
-                sample_area,
-                soft2,
-            } => {
-                let mut w = 0.0f32;
-                for (p, n) in points.iter().zip(normals) {
-                    let d = *p - q;
-                    let r2 = d.length_squared() + soft2;
-                    w += d.dot(*n) / (r2 * r2.sqrt());
-                }
-                w * sample_area / (4.0 * std::f32::consts::PI)
-            }
+            Winding::Exact(triangles) => triangles.winding(probes),
+            Winding::Points(dipoles) => dipoles.winding(probes),
         }
     }
 
+    /// Whether a winding number from [`Self::windings`] counts as inside.
+    pub fn inside(winding: f32) -> bool {
+        winding.abs() >= INSIDE_WINDING
+    }
+
     pub fn is_inside(&self, q: Vec3) -> bool {
-        self.winding(q).abs() >= INSIDE_WINDING
+        Self::inside(self.winding(q))
     }
 
     /// Scores a skeleton given in the unit frame.
@@ -225,7 +158,8 @@ impl SurfaceModel {
         let outside = if probes.is_empty() {
             1.0
         } else {
-            probes.iter().filter(|&&q| !self.is_inside(q)).count() as f32 / probes.len() as f32
+            let w = self.windings(&probes);
+            w.iter().filter(|&&w| !Self::inside(w)).count() as f32 / probes.len() as f32
         };
         let bbox_excess = if skel.is_empty() {
             0.0
@@ -264,22 +198,6 @@ fn segment_distance2(q: Vec3, a: Vec3, b: Vec3) -> f32 {
 
 #[cfg(test)]
 mod tests {
-    #[test]
-    fn fast_atan2_agrees_with_libm_in_every_quadrant() {
-        let mut worst = 0.0f32;
-        for i in -200..=200 {
-            for j in -200..=200 {
-                let (y, x) = (i as f32 * 0.37, j as f32 * 0.53);
-                let (got, want) = (super::atan2(y, x), y.atan2(x));
-                worst = worst.max((got - want).abs());
-            }
-        }
-        assert!(worst < 5e-7, "worst {worst}");
-        assert_eq!(super::atan2(0.0, 0.0), 0.0);
-        assert!(super::atan2(1e-30, -1.0) > std::f32::consts::PI - 1e-6);
-        assert!(super::atan2(-1.0, 1e-30) < -std::f32::consts::FRAC_PI_2 + 1e-6);
-    }
-
     use super::*;
     use crate::rig::Bone;
 
