@@ -192,13 +192,9 @@ fn directed(a: &[Vec3], b: &[Vec3]) -> f32 {
     if a.is_empty() || b.is_empty() {
         return f32::INFINITY;
     }
-    a.iter()
-        .map(|&p| {
-            b.iter()
-                .map(|&q| p.distance_squared(q))
-                .fold(f32::INFINITY, f32::min)
-                .sqrt()
-        })
+    super::lanes::nearest2(a, b)
+        .into_iter()
+        .map(f32::sqrt)
         .sum::<f32>()
         / a.len() as f32
 }

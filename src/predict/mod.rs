@@ -6,6 +6,7 @@
 //! decoding continues after it, so the kept bones come first in the result, unchanged.
 
 pub mod inside;
+mod lanes;
 pub mod library;
 pub mod score;
 mod winding;

@@ -134,15 +134,9 @@ impl SurfaceModel {
         let coverage = if segs.is_empty() {
             f32::INFINITY
         } else {
-            let total: f32 = self
-                .points
-                .iter()
-                .map(|&q| {
-                    segs.iter()
-                        .map(|&(a, b)| segment_distance2(q, a, b))
-                        .fold(f32::INFINITY, f32::min)
-                        .sqrt()
-                })
+            let total: f32 = super::lanes::nearest_segment2(&self.points, &segs)
+                .into_iter()
+                .map(f32::sqrt)
                 .sum();
             total / self.points.len().max(1) as f32 / self.centroid_spread
         };
@@ -183,17 +177,6 @@ impl SurfaceModel {
             cost: coverage + OUTSIDE_WEIGHT * outside + BBOX_WEIGHT * bbox_excess,
         }
     }
-}
-
-fn segment_distance2(q: Vec3, a: Vec3, b: Vec3) -> f32 {
-    let ab = b - a;
-    let len2 = ab.length_squared();
-    let t = if len2 > 0.0 {
-        ((q - a).dot(ab) / len2).clamp(0.0, 1.0)
-    } else {
-        0.0
-    };
-    (a + ab * t).distance_squared(q)
 }
 
 #[cfg(test)]

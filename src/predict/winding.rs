@@ -6,10 +6,9 @@
 //! into one vector (8-wide with AVX2, when the CPU has it). Under load the one-probe loop
 //! was 6 % of the server's CPU.
 
+use super::lanes::{avx2, by_lanes, LANES};
 use glam::Vec3;
 
-/// Probes that share a pass over the triangles.
-const LANES: usize = 8;
 /// Triangles summed in `f32` before the running total takes the block in `f64`: enough
 /// to keep the vector loop in `f32`, few enough that rounding stays far below the 0.5
 /// inside/outside threshold (the per-block sum is at most 4π in magnitude).
@@ -84,26 +83,6 @@ impl Dipoles {
             dipole_lanes(self, q)
         })
     }
-}
-
-#[cfg(target_arch = "x86_64")]
-fn avx2() -> bool {
-    std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma")
-}
-
-/// Runs `lanes` over `probes` eight at a time, transposed to one array per coordinate.
-fn by_lanes(probes: &[Vec3], lanes: impl Fn(&[[f32; LANES]; 3]) -> [f32; LANES]) -> Vec<f32> {
-    let mut out = Vec::with_capacity(probes.len());
-    for chunk in probes.chunks(LANES) {
-        // Short chunks repeat their last probe; the extra lanes are dropped.
-        let mut q = [[0.0f32; LANES]; 3];
-        for l in 0..LANES {
-            let p = chunk[l.min(chunk.len() - 1)];
-            (q[0][l], q[1][l], q[2][l]) = (p.x, p.y, p.z);
-        }
-        out.extend_from_slice(&lanes(&q)[..chunk.len()]);
-    }
-    out
 }
 
 #[cfg(target_arch = "x86_64")]
