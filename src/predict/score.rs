@@ -98,14 +98,10 @@ impl SurfaceModel {
         }
     }
 
-    /// Generalized winding number at `q`: about 1 inside a closed surface, 0 outside, and it
-    /// degrades gracefully on meshes with holes, where ray parity breaks. The sign follows
-    /// the triangle winding, so callers test the magnitude.
-    pub fn winding(&self, q: Vec3) -> f32 {
-        self.windings(&[q])[0]
-    }
-
-    /// [`Self::winding`] at each of `probes`, several at once.
+    /// Generalized winding number at each of `probes` (several share a pass): about 1
+    /// inside a closed surface, 0 outside, and it degrades gracefully on meshes with holes,
+    /// where ray parity breaks. The sign follows the triangle winding, so callers test the
+    /// magnitude ([`Self::inside`]).
     pub fn windings(&self, probes: &[Vec3]) -> Vec<f32> {
         match &self.winding {
             Winding::Exact(triangles) => triangles.winding(probes),
@@ -118,6 +114,13 @@ impl SurfaceModel {
         winding.abs() >= INSIDE_WINDING
     }
 
+    /// One probe's winding number; the scorer always asks for several.
+    #[cfg(test)]
+    pub fn winding(&self, q: Vec3) -> f32 {
+        self.windings(&[q])[0]
+    }
+
+    #[cfg(test)]
     pub fn is_inside(&self, q: Vec3) -> bool {
         Self::inside(self.winding(q))
     }
