@@ -61,6 +61,7 @@ fn backend_with(rt: &Runtime, kv_cache: bool, ragged: bool) -> Backend {
             max_batch: 32,
             kv_cache,
             ragged,
+            ..BackendConfig::default()
         },
     )
     .unwrap()
@@ -209,7 +210,9 @@ fn ragged_decode_equals_recompute() {
 }
 
 /// The same on the shipped model, whose 32-wide heads take the attention op's vectorized
-/// path (the fixture's 8-wide heads take the portable one).
+/// path (the fixture's 8-wide heads take the portable one) over a half-precision cache
+/// (the fixture's is `f32`). Rounding the keys and values to half moves the logits by a
+/// few thousandths (of a range of about 14); the tokens must not change.
 #[test]
 fn shipped_ragged_decode_equals_recompute() {
     let dir = root().join("models/skeleton");
@@ -217,13 +220,19 @@ fn shipped_ragged_decode_equals_recompute() {
         eprintln!("SKIPPED: no shipped decode step in {}", dir.display());
         return;
     }
-    ragged_equals_recompute(&dir, 1e-3);
+    ragged_equals_recompute(&dir, 1e-2);
 }
 
 fn ragged_equals_recompute(dir: &Path, tol: f32) {
     let Some(rt) = runtime() else { return };
     let mut m = load(&rt, dir);
     assert!(m.has_step(), "{} has decoder_step.onnx", dir.display());
+    let half = dir.starts_with(root().join("models"));
+    assert_eq!(
+        m.empty_ragged().is_half(),
+        half,
+        "the shipped step keeps a half-precision cache, the fixture an f32 one"
+    );
     let (pa, pb) = (random_points(3, 2048), random_points(4, 2048));
     let prefix = m.encode(&to_array(&[&pa, &pb])).unwrap();
     let prompts: Vec<Vec<u32>> = vec![vec![BOS, CLS_NONE], vec![BOS, CLS_BASE + 1, 120, 130, 140]];

@@ -8,6 +8,8 @@
 //! softmax, and one pass of multiply-adds over the values, reading each cached column
 //! once where it lies.
 
+use super::elem::CacheElem;
+
 /// ln 2 split so that `n · LN2_HI` is exact for the n of any f32 exponent (Cody and Waite):
 /// the reduced argument then carries no rounding error of its own.
 const LN2_HI: f32 = 0.693_359_4;
@@ -30,19 +32,26 @@ fn exp_neg(x: f32) -> f32 {
 }
 
 /// One head's query over its cache: `k` and `v` hold at least `len` rows of `q.len()`
-/// floats each (row-major).
-#[derive(Clone, Copy)]
-pub struct Head<'a> {
+/// numbers each (row-major), in `f32` or half precision ([`CacheElem`]).
+pub struct Head<'a, E> {
     pub q: &'a [f32],
-    pub k: &'a [f32],
-    pub v: &'a [f32],
+    pub k: &'a [E],
+    pub v: &'a [E],
     pub len: usize,
     pub scale: f32,
 }
 
+// Derived, these would ask `E: Copy` of the slices' elements for no reason.
+impl<E> Clone for Head<'_, E> {
+    fn clone(&self) -> Self {
+        *self
+    }
+}
+impl<E> Copy for Head<'_, E> {}
+
 /// `out = softmax(scale · q·Kᵀ) · V` over the first `len` rows of `k` and `v`, with
 /// `scores` as scratch of at least `len`.
-pub fn attend(head: Head, scores: &mut [f32], out: &mut [f32]) {
+pub fn attend<E: CacheElem>(head: Head<E>, scores: &mut [f32], out: &mut [f32]) {
     let Head { q, k, v, len, .. } = head;
     let dh = q.len();
     assert!(
@@ -57,8 +66,7 @@ pub fn attend(head: Head, scores: &mut [f32], out: &mut [f32]) {
             unsafe { avx512::attend32(head, scores, out) };
             return;
         }
-        if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma")
-        {
+        if avx2::available() {
             // SAFETY: as above.
             unsafe { avx2::attend32(head, scores, out) };
             return;
@@ -67,7 +75,7 @@ pub fn attend(head: Head, scores: &mut [f32], out: &mut [f32]) {
     portable(head, scores, out);
 }
 
-fn portable(head: Head, scores: &mut [f32], out: &mut [f32]) {
+fn portable<E: CacheElem>(head: Head<E>, scores: &mut [f32], out: &mut [f32]) {
     let Head {
         q,
         k,
@@ -78,13 +86,13 @@ fn portable(head: Head, scores: &mut [f32], out: &mut [f32]) {
     let dh = q.len();
     let scores = &mut scores[..len];
     for (s, kj) in scores.iter_mut().zip(k.chunks_exact(dh)) {
-        *s = q.iter().zip(kj).map(|(a, b)| a * b).sum::<f32>() * scale;
+        *s = q.iter().zip(kj).map(|(a, b)| a * b.to_f32()).sum::<f32>() * scale;
     }
     let inv = softmax_in_place(scores);
     out.fill(0.0);
     for (&p, vj) in scores.iter().zip(v.chunks_exact(dh)) {
         for (o, &x) in out.iter_mut().zip(vj) {
-            *o += p * x;
+            *o += p * x.to_f32();
         }
     }
     for o in out.iter_mut() {
@@ -113,6 +121,7 @@ mod avx512;
 
 #[cfg(test)]
 mod tests {
+    use super::super::elem::F16;
     use super::*;
 
     /// Softmax attention in f64, the textbook way.
@@ -146,20 +155,19 @@ mod tests {
             .collect()
     }
 
-    type Kernel = fn(Head, &mut [f32], &mut [f32]);
+    type Kernel<E> = fn(Head<E>, &mut [f32], &mut [f32]);
 
     /// The 32-wide kernels this CPU can run, called directly (`attend` picks only one).
-    fn simd_kernels() -> Vec<(&'static str, Kernel)> {
+    fn simd_kernels<E: CacheElem>() -> Vec<(&'static str, Kernel<E>)> {
         #[allow(unused_mut)]
-        let mut found: Vec<(&'static str, Kernel)> = Vec::new();
+        let mut found: Vec<(&'static str, Kernel<E>)> = Vec::new();
         #[cfg(target_arch = "x86_64")]
         {
-            use std::arch::is_x86_feature_detected as has;
-            if has!("avx512f") {
+            if std::arch::is_x86_feature_detected!("avx512f") {
                 // SAFETY: detected just above.
                 found.push(("avx512", |h, s, o| unsafe { avx512::attend32(h, s, o) }));
             }
-            if has!("avx2") && has!("fma") {
+            if avx2::available() {
                 // SAFETY: detected just above.
                 found.push(("avx2", |h, s, o| unsafe { avx2::attend32(h, s, o) }));
             }
@@ -182,9 +190,19 @@ mod tests {
 
     #[test]
     fn matches_the_textbook_formula_for_every_width_and_length() {
+        formula_holds::<f32>(|x| x);
+        formula_holds::<F16>(F16::from_f32);
+    }
+
+    /// Every kernel over a cache of `E` (the keys and values rounded by `round`) against
+    /// the formula in f64 over the same rounded numbers.
+    fn formula_holds<E: CacheElem>(round: fn(f32) -> E) {
         for dh in [32, 8, 5] {
             for len in [1, 2, 8, 16, 17, 300] {
-                let (q, k, v) = (filled(dh, 1), filled(len * dh, 2), filled(len * dh, 3));
+                let q = filled(dh, 1);
+                let k: Vec<E> = filled(len * dh, 2).into_iter().map(round).collect();
+                let v: Vec<E> = filled(len * dh, 3).into_iter().map(round).collect();
+                let wide = |x: &[E]| x.iter().map(|e| e.to_f32()).collect::<Vec<f32>>();
                 let mut scores = vec![0.0; len];
                 let mut out = vec![0.0; dh];
                 let scale = 1.0 / (dh as f32).sqrt();
@@ -195,8 +213,8 @@ mod tests {
                     len,
                     scale,
                 };
-                let want = reference(&q, &k, &v, len, scale);
-                let mut kernels: Vec<(&str, Kernel)> =
+                let want = reference(&q, &wide(&k), &wide(&v), len, scale);
+                let mut kernels: Vec<(&str, Kernel<E>)> =
                     vec![("attend", attend), ("portable", portable)];
                 if dh == 32 {
                     kernels.extend(simd_kernels());
@@ -207,7 +225,8 @@ mod tests {
                     for d in 0..dh {
                         assert!(
                             (out[d] as f64 - want[d]).abs() < 2e-5,
-                            "{name}, dh {dh} len {len}: {} vs {}",
+                            "{name} over {:?}, dh {dh} len {len}: {} vs {}",
+                            E::TYPE,
                             out[d],
                             want[d]
                         );

@@ -11,25 +11,36 @@
 //! One difference: the cache may hold more rows (slots) than the batch. Rows past the
 //! batch are left as they are, so a cache can keep spare slots for rows that join later
 //! without running them every step (`GroupQueryAttention` needs the two equal).
+//!
+//! The cache tensors are `float` or `float16` (the graph says which; q, k, v and the
+//! output stay `float`): the op is registered once per cache type, and ONNX Runtime picks
+//! the kernel by the graph's types. A half-precision cache rounds each new key and value
+//! when it writes them and halves what a step reads ([`super::elem`]).
 
 use super::attention::{attend, Head};
+use super::elem::{CacheElem, F16};
 use ort::operator::{
     ComputeContext, Kernel, KernelContext, Operator, OperatorDomain, OperatorInput, OperatorOutput,
 };
-use ort::value::TensorElementType;
+use ort::value::{DynTensorValueType, TensorElementType};
+use std::marker::PhantomData;
 
 pub const DOMAIN: &str = "ai.rigserve";
 pub const OP: &str = "RaggedAttention";
 
-/// The domain holding [`RaggedAttention`], for `SessionBuilder::with_operators`.
+/// The domain holding [`RaggedAttention`] for both cache types, for
+/// `SessionBuilder::with_operators`.
 pub fn operators() -> ort::Result<OperatorDomain> {
-    OperatorDomain::new(DOMAIN)?.add(RaggedAttention)
+    OperatorDomain::new(DOMAIN)?
+        .add(RaggedAttention::<f32>(PhantomData))?
+        .add(RaggedAttention::<F16>(PhantomData))
 }
 
-pub struct RaggedAttention;
+/// The op for caches of `E`.
+pub struct RaggedAttention<E>(PhantomData<E>);
 
-impl Operator for RaggedAttention {
-    type Kernel<'attr> = RaggedAttentionKernel;
+impl<E: CacheElem> Operator for RaggedAttention<E> {
+    type Kernel<'attr> = RaggedAttentionKernel<E>;
 
     fn name(&self) -> &str {
         OP
@@ -39,19 +50,18 @@ impl Operator for RaggedAttention {
         use TensorElementType::{Float32, Int32};
         [
             OperatorInput::required(Float32), // qkv (B, 1, 3·H·dh)
-            OperatorInput::required(Float32), // past key (B, H, C, dh)
-            OperatorInput::required(Float32), // past value
+            OperatorInput::required(E::TYPE), // past key (B, H, C, dh)
+            OperatorInput::required(E::TYPE), // past value
             OperatorInput::required(Int32),   // seqlens_k (B)
             OperatorInput::optional(Int32),   // total_sequence_length (scalar), checked
         ]
     }
 
     fn outputs(&self) -> impl IntoIterator<Item = OperatorOutput> {
-        use TensorElementType::Float32;
         [
-            OperatorOutput::required(Float32), // attention (B, 1, H·dh)
-            OperatorOutput::required(Float32), // present key (B, H, C, dh)
-            OperatorOutput::required(Float32), // present value
+            OperatorOutput::required(TensorElementType::Float32), // attention (B, 1, H·dh)
+            OperatorOutput::required(E::TYPE),                    // present key (B, H, C, dh)
+            OperatorOutput::required(E::TYPE),                    // present value
         ]
     }
 
@@ -63,14 +73,16 @@ impl Operator for RaggedAttention {
         Ok(RaggedAttentionKernel {
             heads: heads as usize,
             scale: k.get::<f32>("scale").filter(|s| *s != 0.0),
+            cache: PhantomData,
         })
     }
 }
 
-pub struct RaggedAttentionKernel {
+pub struct RaggedAttentionKernel<E> {
     heads: usize,
     /// None: 1/√dh.
     scale: Option<f32>,
+    cache: PhantomData<E>,
 }
 
 fn fail(m: impl std::fmt::Display) -> ort::Error {
@@ -78,33 +90,52 @@ fn fail(m: impl std::fmt::Display) -> ort::Error {
 }
 
 /// A buffer shared by the row closures of one call; each row writes only its own slice.
-#[derive(Clone, Copy)]
-struct Shared(*mut f32);
+struct Shared<T>(*mut T);
 // SAFETY: the closures write disjoint rows (see `compute`), and the buffer outlives them.
-unsafe impl Send for Shared {}
-unsafe impl Sync for Shared {}
+unsafe impl<T> Send for Shared<T> {}
+unsafe impl<T> Sync for Shared<T> {}
+impl<T> Clone for Shared<T> {
+    fn clone(&self) -> Self {
+        *self
+    }
+}
+impl<T> Copy for Shared<T> {}
 
-impl Shared {
+impl<T> Shared<T> {
     /// A method, not the field: a closure using `.0` would capture the bare pointer,
     /// which is not `Sync`.
-    fn at(self, offset: usize) -> *mut f32 {
+    fn at(self, offset: usize) -> *mut T {
         // SAFETY (of callers): offsets stay within the buffer's checked shape.
         self.0.wrapping_add(offset)
     }
 }
 
-impl Kernel for RaggedAttentionKernel {
+/// A cache tensor's shape and data, checked to hold `E`.
+fn cache_in<E: CacheElem>(v: ort::value::ValueRef<'_>) -> ort::Result<(Vec<i64>, *const E)> {
+    if *v.data_type() != E::TYPE {
+        return Err(fail(format!(
+            "a cache of {:?}, want {:?}",
+            v.data_type(),
+            E::TYPE
+        )));
+    }
+    let shape = v.shape().to_vec();
+    let t = v.downcast::<DynTensorValueType>()?;
+    Ok((shape, t.data_ptr().cast()))
+}
+
+impl<E: CacheElem> Kernel for RaggedAttentionKernel<E> {
     fn compute(&mut self, ctx: &ComputeContext) -> ort::Result<()> {
         let input = |i: usize| {
             ctx.input(i)?
                 .ok_or_else(|| fail(format!("input {i} missing")))
         };
-        let (qkv_in, past_k_in, past_v_in, lens_in) = (input(0)?, input(1)?, input(2)?, input(3)?);
+        let (qkv_in, lens_in) = (input(0)?, input(3)?);
         let (qs, qkv) = qkv_in.try_extract_tensor::<f32>()?;
-        let (ps, past_k) = past_k_in.try_extract_tensor::<f32>()?;
-        let (vs, past_v) = past_v_in.try_extract_tensor::<f32>()?;
+        let (ps, past_k) = cache_in::<E>(input(1)?)?;
+        let (vs, past_v) = cache_in::<E>(input(2)?)?;
         let (_, lens) = lens_in.try_extract_tensor::<i32>()?;
-        let (h, dims) = (self.heads, ps.to_vec());
+        let (h, dims) = (self.heads, ps.clone());
         let [slots, hh, cols, dh] = dims[..] else {
             return Err(fail(format!(
                 "past key of shape {ps:?}, want (slots, H, C, dh)"
@@ -143,19 +174,23 @@ impl Kernel for RaggedAttentionKernel {
         }
         let lens: Vec<usize> = lens.iter().map(|&n| n as usize).collect();
         let n = slots * h * cols * dh;
-        let (pk, pv) = (past_k.as_ptr(), past_v.as_ptr());
+        let (pk, pv) = (past_k, past_v);
         let shape = [slots, h, cols, dh];
-        let present = |i: usize| -> ort::Result<Shared> {
-            let mut v = ctx
+        let present = |i: usize| -> ort::Result<Shared<E>> {
+            let v = ctx
                 .output(i, shape)?
                 .ok_or_else(|| fail(format!("output {i} missing")))?;
-            let (_, d) = v.try_extract_tensor_mut::<f32>()?;
-            Ok(Shared(d.as_mut_ptr()))
+            if *v.data_type() != E::TYPE {
+                return Err(fail(format!("output {i} of {:?}", v.data_type())));
+            }
+            // The output's own buffer (ONNX Runtime's GetTensorMutableData either way).
+            let t = v.downcast::<DynTensorValueType>()?;
+            Ok(Shared(t.data_ptr().cast_mut().cast()))
         };
         let (ok, ov) = (present(1)?, present(2)?);
         for (dst, src) in [(ok, pk), (ov, pv)] {
             if !std::ptr::eq(dst.0, src) {
-                // SAFETY: both buffers hold `n` floats (shapes checked above) and are
+                // SAFETY: both buffers hold `n` numbers (shapes checked above) and are
                 // distinct allocations, as the pointers differ.
                 unsafe { std::ptr::copy_nonoverlapping(src, dst.0, n) };
             }
@@ -181,8 +216,8 @@ impl Kernel for RaggedAttentionKernel {
                     let col = lens[r] * dh;
                     let new_k = &q[(h + i) * dh..(h + i + 1) * dh];
                     let new_v = &q[(2 * h + i) * dh..(2 * h + i + 1) * dh];
-                    k[col..col + dh].copy_from_slice(new_k);
-                    v[col..col + dh].copy_from_slice(new_v);
+                    E::write(&mut k[col..col + dh], new_k);
+                    E::write(&mut v[col..col + dh], new_v);
                     let head = Head {
                         q: &q[i * dh..(i + 1) * dh],
                         k,

@@ -23,6 +23,7 @@ mod attention;
 mod attention_op;
 mod backend;
 mod cache;
+mod elem;
 mod error;
 mod kv;
 mod model;

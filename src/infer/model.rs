@@ -172,6 +172,8 @@ pub struct SkeletonModel {
     /// Its attention takes a cache of more rows than the batch (rigserve's op; metadata
     /// `rigserve.attention`), so ragged caches keep spare slots.
     step_spare_slots: bool,
+    /// Its cache is half precision (`float16` past and present).
+    step_half: bool,
     info: ModelInfo,
     files: ModelFiles,
     past_names: Vec<String>,
@@ -249,13 +251,22 @@ pub(super) struct Expect<'a> {
     pub(super) dims: &'a [Dim],
 }
 
-/// One float tensor per name, all of shape `dims` (the cache inputs and outputs).
-fn float_outlets<'a>(names: &'a [String], dims: &'a [Dim]) -> impl Iterator<Item = Expect<'a>> {
-    names.iter().map(move |n| Expect {
-        name: n,
-        ty: TensorElementType::Float32,
-        dims,
-    })
+/// One tensor of `ty` per name, all of shape `dims` (the cache inputs and outputs).
+fn cache_outlets<'a>(
+    names: &'a [String],
+    dims: &'a [Dim],
+    ty: TensorElementType,
+) -> impl Iterator<Item = Expect<'a>> {
+    names.iter().map(move |n| Expect { name: n, ty, dims })
+}
+
+/// `decoder_step.onnx`, opened and checked.
+struct Step {
+    session: Session,
+    /// Its attention takes a cache of more rows than the batch (rigserve's op).
+    spare_slots: bool,
+    /// Its cache tensors are `float16`.
+    half: bool,
 }
 
 pub(super) fn check_outlets(
@@ -403,12 +414,39 @@ fn load_step(
     info: &ModelInfo,
     past_names: &[String],
     present_names: &[String],
-) -> Result<Session, InferError> {
+) -> Result<Step, InferError> {
     use Dim::*;
-    use TensorElementType::{Float32, Int32, Int64};
+    use TensorElementType::{Float16, Float32, Int32, Int64};
     let path = &files.step;
     let step = open_session_with(rt, path, cfg, true)?;
     let got = read_metadata(&step, path, "decoder_step")?;
+    let spare_slots = step
+        .metadata()
+        .ok()
+        .and_then(|m| m.custom("rigserve.attention"))
+        .is_some_and(|a| a == "rigserve");
+    // The cache's number type is the graph's: half precision needs rigserve's op (the
+    // other ops keep the cache in the type of q, k and v).
+    let cache_ty = step
+        .inputs()
+        .iter()
+        .find(|o| past_names.first().is_some_and(|n| o.name() == n))
+        .and_then(|o| match o.dtype() {
+            ValueType::Tensor { ty, .. } => Some(*ty),
+            _ => None,
+        })
+        .unwrap_or(Float32);
+    if cache_ty == Float16 && !spare_slots {
+        return Err(InferError::Contract {
+            path: path.clone(),
+            problem: "a float16 cache needs rigserve.attention = rigserve".into(),
+        });
+    }
+    let cache_ty = if cache_ty == Float16 {
+        Float16
+    } else {
+        Float32
+    };
     let same = |a: &ModelInfo| {
         (
             a.d_model,
@@ -453,7 +491,7 @@ fn load_step(
             dims: &[],
         },
     ];
-    ins.extend(float_outlets(&past_names, &kv_dims));
+    ins.extend(cache_outlets(past_names, &kv_dims, cache_ty));
     check_outlets(path, "decode step inputs", step.inputs(), &ins)?;
     let logits_dims = [Dynamic, Is(1), Is(info.vocab_size)];
     let mut outs = vec![Expect {
@@ -461,9 +499,13 @@ fn load_step(
         ty: Float32,
         dims: &logits_dims,
     }];
-    outs.extend(float_outlets(&present_names, &kv_dims));
+    outs.extend(cache_outlets(present_names, &kv_dims, cache_ty));
     check_outlets(path, "decode step outputs", step.outputs(), &outs)?;
-    Ok(step)
+    Ok(Step {
+        session: step,
+        spare_slots,
+        half: cache_ty == Float16,
+    })
 }
 
 impl SkeletonModel {
@@ -548,14 +590,14 @@ impl SkeletonModel {
                 dims: &[Dynamic, Dynamic],
             },
         ];
-        ins.extend(float_outlets(&past_names, &kv_dims));
+        ins.extend(cache_outlets(&past_names, &kv_dims, Float32));
         check_outlets(&files.decoder, "decoder inputs", decoder.inputs(), &ins)?;
         let mut outs = vec![Expect {
             name: "logits",
             ty: Float32,
             dims: &logits_dims,
         }];
-        outs.extend(float_outlets(&new_names, &kv_dims));
+        outs.extend(cache_outlets(&new_names, &kv_dims, Float32));
         check_outlets(&files.decoder, "decoder outputs", decoder.outputs(), &outs)?;
         let present_names: Vec<String> = (0..info.n_layers)
             .flat_map(|i| [format!("present.{i}.key"), format!("present.{i}.value")])
@@ -573,12 +615,9 @@ impl SkeletonModel {
             None
         };
         let has_step = step.is_some();
-        let step_spare_slots = step.as_ref().is_some_and(|s| {
-            s.metadata()
-                .ok()
-                .and_then(|m| m.custom("rigserve.attention"))
-                .is_some_and(|a| a == "rigserve")
-        });
+        let step_spare_slots = step.as_ref().is_some_and(|s| s.spare_slots);
+        let step_half = step.as_ref().is_some_and(|s| s.half);
+        let step = step.map(|s| s.session);
         let mut model = SkeletonModel {
             encoder: Some(PointEncoder {
                 session: encoder,
@@ -587,6 +626,7 @@ impl SkeletonModel {
             decoder,
             step,
             step_spare_slots,
+            step_half,
             info,
             files: files.clone(),
             past_names,
@@ -829,6 +869,7 @@ impl SkeletonModel {
             self.info.head_dim,
         )
         .spare_slots(self.step_spare_slots)
+        .half(self.step_half)
     }
 
     /// Next-token logits for whole sequences without a cache (the reference the cached

@@ -13,14 +13,48 @@
 //! same rows: there the spare slots are dead rows that still run (one position each, their
 //! logits dropped) until the slack is worth a relayout, which is cheaper than resizing the
 //! tensors every time a row finishes.
+//!
+//! The tensors hold `f32` or half-precision numbers, as the step graph declares
+//! ([`super::elem`]); a prefill's `f32` rows are rounded when they join.
 
+use super::elem::{CacheElem, F16};
 use super::kv::{fill_moves, KvCache, GROW};
 use super::InferError;
 use ort::memory::Allocator;
-use ort::value::Tensor;
+use ort::value::{DynTensor, TensorElementType};
 
 fn bad(m: impl std::fmt::Display) -> InferError {
     InferError::run("ragged kv cache", m)
+}
+
+/// Bytes per cached number.
+fn elem_size(elem: TensorElementType) -> usize {
+    match elem {
+        TensorElementType::Float16 => 2,
+        _ => 4,
+    }
+}
+
+/// The tensor's numbers as bytes.
+fn bytes_mut(t: &mut DynTensor) -> &mut [u8] {
+    let n = t.size().expect("a numeric tensor has a byte size");
+    // SAFETY: a CPU tensor of `n` bytes, borrowed mutably for the slice's lifetime.
+    unsafe { std::slice::from_raw_parts_mut(t.data_ptr_mut().cast::<u8>(), n) }
+}
+
+/// The tensor's numbers, which must be `E`s.
+fn typed_mut<E: CacheElem>(t: &mut DynTensor) -> &mut [E] {
+    assert_eq!(*t.data_type(), E::TYPE, "cache tensor of another type");
+    let n = t.shape().num_elements();
+    // SAFETY: a CPU tensor of `n` numbers of type E (checked above), borrowed mutably.
+    unsafe { std::slice::from_raw_parts_mut(t.data_ptr_mut().cast::<E>(), n) }
+}
+
+/// Copies `dh` numbers from `src[from..]` to `dst[to..]` for each span, rounded to `E`.
+fn place<E: CacheElem>(dst: &mut [E], src: &[f32], spans: &[(usize, usize)], dh: usize) {
+    for &(to, from) in spans {
+        E::write(&mut dst[to..to + dh], &src[from..from + dh]);
+    }
 }
 
 fn round_up(n: usize) -> usize {
@@ -39,8 +73,10 @@ pub struct RaggedKv {
     heads: usize,
     head_dim: usize,
     n_tensors: usize,
+    /// Float32 or Float16.
+    elem: TensorElementType,
     /// Empty while there are no slots.
-    tensors: Vec<Tensor<f32>>,
+    tensors: Vec<DynTensor>,
     slots: usize,
     cols: usize,
     /// Per live row: written positions, and the position id of its next token.
@@ -66,6 +102,7 @@ impl RaggedKv {
             heads,
             head_dim,
             n_tensors,
+            elem: TensorElementType::Float32,
             tensors: Vec::new(),
             slots: 0,
             cols: 0,
@@ -81,6 +118,20 @@ impl RaggedKv {
     pub fn spare_slots(mut self, spare: bool) -> RaggedKv {
         self.spare = spare;
         self
+    }
+
+    /// Half-precision tensors (for a step graph whose cache is `float16`) instead of `f32`.
+    pub fn half(mut self, half: bool) -> RaggedKv {
+        self.elem = if half {
+            TensorElementType::Float16
+        } else {
+            TensorElementType::Float32
+        };
+        self
+    }
+
+    pub fn is_half(&self) -> bool {
+        self.elem == TensorElementType::Float16
     }
 
     /// Rows a step runs: the live rows, and with `GroupQueryAttention` the dead slots
@@ -137,29 +188,34 @@ impl RaggedKv {
     }
 
     /// The tensors, to bind as the step's past inputs and present outputs.
-    pub(crate) fn tensors_mut(&mut self) -> &mut [Tensor<f32>] {
+    pub(crate) fn tensors_mut(&mut self) -> &mut [DynTensor] {
         &mut self.tensors
     }
 
     /// Fresh tensors of `slots × cols`, holding the live rows' written columns.
     fn relayout(&mut self, slots: usize, cols: usize) -> Result<(), InferError> {
-        let (h, dh) = (self.heads, self.head_dim);
-        let old_plane = self.plane();
-        let new_plane = cols * dh;
+        let (h, dh, es) = (self.heads, self.head_dim, elem_size(self.elem));
+        let old_plane = self.plane() * es;
+        let new_plane = cols * dh * es;
         let mut out = Vec::with_capacity(self.n_tensors);
         for i in 0..self.n_tensors {
-            let mut t = Tensor::<f32>::new(&Allocator::default(), [slots.max(1), h, cols, dh])
-                .map_err(bad)?;
-            let (_, dst) = t.extract_tensor_mut();
-            // Only written columns are copied; the rest keep the allocator's bytes. The step
-            // reads a row's columns 0..=len only after writing column len, so nothing
-            // unwritten is ever read, and leaving it untouched leaves its pages unfaulted.
-            let old = self.tensors.get(i).map(|t| t.extract_tensor().1);
-            for (p, plane) in dst.chunks_exact_mut(new_plane).enumerate() {
-                let (r, hh) = (p / h, p % h);
-                if let (Some(src), Some(&n)) = (old, self.len.get(r)) {
-                    let s = (r * h + hh) * old_plane;
-                    plane[..n * dh].copy_from_slice(&src[s..s + n * dh]);
+            let mut t = DynTensor::new(
+                &Allocator::default(),
+                self.elem,
+                [slots.max(1), h, cols, dh],
+            )
+            .map_err(bad)?;
+            let dst = bytes_mut(&mut t);
+            // Only written columns are copied: the step reads a row's columns 0..=len only
+            // after writing column len, so nothing unwritten is ever read.
+            let old = self.tensors.get_mut(i).map(bytes_mut);
+            if let Some(src) = old {
+                for (p, plane) in dst.chunks_exact_mut(new_plane).enumerate() {
+                    let (r, hh) = (p / h, p % h);
+                    if let Some(&n) = self.len.get(r) {
+                        let (s, n) = ((r * h + hh) * old_plane, n * dh * es);
+                        plane[..n].copy_from_slice(&src[s..s + n]);
+                    }
                 }
             }
             out.push(t);
@@ -210,21 +266,28 @@ impl RaggedKv {
             };
             self.relayout(slots, cols)?;
         }
-        let plane = self.plane();
-        let src_plane = src.capacity() * dh;
+        let (plane, src_plane) = (self.plane(), src.capacity() * dh);
+        // Where each joining row's real columns go: (destination, source) offsets, the
+        // same in every tensor.
+        let mut spans = Vec::new();
+        for (k, (&row, cols)) in rows.iter().zip(&real).enumerate() {
+            for hh in 0..h {
+                let (to, from) = (((live + k) * h + hh) * plane, (row * h + hh) * src_plane);
+                spans.extend(
+                    cols.iter()
+                        .enumerate()
+                        .map(|(j, &c)| (to + j * dh, from + c * dh)),
+                );
+            }
+        }
+        let half = self.is_half();
         for (i, tensor) in self.tensors.iter_mut().enumerate() {
             let view = src.tensor(i);
             let s = view.as_slice().expect("a cache tensor is contiguous");
-            let (_, dst) = tensor.extract_tensor_mut();
-            for (k, (&row, cols)) in rows.iter().zip(&real).enumerate() {
-                let r = live + k;
-                for hh in 0..h {
-                    let (to, from) = ((r * h + hh) * plane, (row * h + hh) * src_plane);
-                    for (j, &c) in cols.iter().enumerate() {
-                        dst[to + j * dh..to + (j + 1) * dh]
-                            .copy_from_slice(&s[from + c * dh..from + (c + 1) * dh]);
-                    }
-                }
+            if half {
+                place(typed_mut::<F16>(tensor), s, &spans, dh);
+            } else {
+                place(typed_mut::<f32>(tensor), s, &spans, dh);
             }
         }
         for (&row, cols) in rows.iter().zip(&real) {
@@ -257,11 +320,10 @@ impl RaggedKv {
     pub fn retain(&mut self, keep: &[usize]) -> Result<Vec<usize>, InferError> {
         let (moves, order) = fill_moves(keep, self.batch())?;
         let n = keep.len();
-        let rl = self.row_len();
+        let rl = self.row_len() * elem_size(self.elem);
         for (hole, from) in moves {
             for t in &mut self.tensors {
-                let (_, d) = t.extract_tensor_mut();
-                d.copy_within(from * rl..(from + 1) * rl, hole * rl);
+                bytes_mut(t).copy_within(from * rl..(from + 1) * rl, hole * rl);
             }
             self.len[hole] = self.len[from];
             self.next_pos[hole] = self.next_pos[from];
@@ -269,8 +331,9 @@ impl RaggedKv {
         self.len.truncate(n);
         self.next_pos.truncate(n);
         if n == 0 {
-            *self =
-                RaggedKv::empty(self.n_tensors, self.heads, self.head_dim).spare_slots(self.spare);
+            *self = RaggedKv::empty(self.n_tensors, self.heads, self.head_dim)
+                .spare_slots(self.spare)
+                .half(self.is_half());
             return Ok(order);
         }
         // Dead slots that run each step, or spare slots and columns that only take memory:
@@ -303,8 +366,20 @@ mod tests {
     }
 
     fn value(c: &RaggedKv, t: usize, r: usize, col: usize) -> f32 {
-        let (_, d) = c.tensors[t].extract_tensor();
-        d[((r * 2 + 1) * c.cols + col) * 3 + 2]
+        let i = ((r * 2 + 1) * c.cols + col) * 3 + 2;
+        let p = c.tensors[t].data_ptr();
+        assert!(i < c.tensors[t].shape().num_elements());
+        // SAFETY: within the tensor (asserted), of the type `elem` says.
+        unsafe {
+            match c.elem {
+                TensorElementType::Float16 => (*p.cast::<F16>().add(i)).to_f32(),
+                _ => *p.cast::<f32>().add(i),
+            }
+        }
+    }
+
+    fn first(c: &RaggedKv) -> *const std::ffi::c_void {
+        c.tensors[0].data_ptr().cast()
     }
 
     fn ort_available() -> bool {
@@ -318,7 +393,13 @@ mod tests {
             eprintln!("skipped: ONNX Runtime not found");
             return;
         }
-        let mut c = RaggedKv::empty(2, 2, 3);
+        // The test's values are integers below 2048, which half precision holds exactly.
+        for half in [false, true] {
+            packed_rows(RaggedKv::empty(2, 2, 3).half(half));
+        }
+    }
+
+    fn packed_rows(mut c: RaggedKv) {
         c.append_rows(&source(&[&[1, 1, 0, 1], &[1, 1, 1, 1]]), &[0, 1, 0])
             .unwrap();
         assert_eq!(c.lens(), &[3, 4, 3]);
@@ -347,7 +428,12 @@ mod tests {
             eprintln!("skipped: ONNX Runtime not found");
             return;
         }
-        let mut c = RaggedKv::empty(2, 2, 3);
+        for half in [false, true] {
+            slack_and_growth(RaggedKv::empty(2, 2, 3).half(half));
+        }
+    }
+
+    fn slack_and_growth(mut c: RaggedKv) {
         let src = source(&[&[1; 5]]);
         c.append_rows(&src, &[0; 8]).unwrap();
         assert_eq!(c.slots(), 8);
@@ -370,7 +456,12 @@ mod tests {
             eprintln!("skipped: ONNX Runtime not found");
             return;
         }
-        let mut c = RaggedKv::empty(2, 2, 3).spare_slots(true);
+        for half in [false, true] {
+            spare_slots(RaggedKv::empty(2, 2, 3).spare_slots(true).half(half));
+        }
+    }
+
+    fn spare_slots(mut c: RaggedKv) {
         let src = source(&[&[1, 1, 1, 0], &[1, 1, 1, 1]]);
         c.append_rows(&src, &[0, 1]).unwrap();
         let (slots, cols) = (c.slots(), c.capacity());
@@ -378,10 +469,10 @@ mod tests {
         assert_eq!(c.step_rows(), 2, "only live rows run");
         c.advance();
         // A row joins into a spare slot: same tensors, no relayout.
-        let before = c.tensors[0].extract_tensor().1.as_ptr();
+        let before = first(&c);
         c.append_rows(&src, &[1]).unwrap();
         assert_eq!((c.slots(), c.capacity()), (slots, cols));
-        assert_eq!(c.tensors[0].extract_tensor().1.as_ptr(), before);
+        assert_eq!(first(&c), before);
         assert_eq!(c.lens(), &[4, 5, 4]);
         assert_eq!(value(&c, 1, 2, 3), 1003.0);
         // Leaving moves the last row into the hole, still in place.
@@ -393,6 +484,6 @@ mod tests {
             1003.0,
             "the joined row moved into slot 0"
         );
-        assert_eq!(c.tensors[0].extract_tensor().1.as_ptr(), before);
+        assert_eq!(first(&c), before);
     }
 }

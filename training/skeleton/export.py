@@ -234,7 +234,8 @@ def export_all(model: SkeletonModel, out_dir: str, method: str = "auto", variant
     model = model.float().eval()
     enc, dec = os.path.join(out_dir, "encoder.onnx"), os.path.join(out_dir, "decoder.onnx")
     info = {"encoder_exporter": export_encoder(model, enc, method), "decoder_exporter": export_decoder(model, dec, method)}
-    # The ragged decode step (fp32 only): what the server decodes with when it is there.
+    # The ragged decode step (fp32 weights; a float16 cache with the rigserve op, the
+    # default): what the server decodes with when it is there.
     from .step_graph import STEP_FILE, build as build_step, check as check_step
 
     build_step(model, os.path.join(out_dir, STEP_FILE))

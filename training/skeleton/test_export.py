@@ -126,17 +126,29 @@ def test_step_flavours_differ_only_in_attention():
     import onnx
     from onnx import numpy_helper
 
-    from .step_graph import STEP_FILE, attention_of, build, convert, same_but_attention
+    from .step_graph import STEP_FILE, attention_of, build, cache_of, convert, same_but_attention
 
     model, d = _exported()
     shipped = os.path.join(d, STEP_FILE)
     assert attention_of(shipped) == "rigserve"
+    assert cache_of(shipped) == "float16"
     tmp = tempfile.mkdtemp(prefix="skel_step_")
     twin = build(model, os.path.join(tmp, "gqa.onnx"), attention="gqa")
+    assert cache_of(twin) == "float32"
     same_but_attention(shipped, twin)
+    wide = shutil.copy(shipped, os.path.join(tmp, "wide.onnx"))
+    convert(wide, "rigserve", "float32")
+    assert (attention_of(wide), cache_of(wide)) == ("rigserve", "float32")
+    same_but_attention(wide, shipped)
+    try:
+        convert(wide, "gqa", "float16")
+    except ValueError:
+        pass
+    else:
+        raise AssertionError("GroupQueryAttention was given a float16 cache")
     back = shutil.copy(shipped, os.path.join(tmp, "back.onnx"))
     convert(back, "gqa")
-    assert attention_of(back) == "gqa"
+    assert (attention_of(back), cache_of(back)) == ("gqa", "float32")
     same_but_attention(back, twin)
     m = onnx.load(back)
     for t in m.graph.initializer:

@@ -1,8 +1,16 @@
 //! [`super::attend`] for 32-wide heads on AVX2 with FMA, for CPUs without AVX-512: a key
 //! or value row is four 8-lane registers. Without it such a CPU runs the portable loop,
-//! whose dot products the compiler keeps scalar (it may not reorder a float sum).
+//! whose dot products the compiler keeps scalar (it may not reorder a float sum). F16C
+//! (which every AVX2 CPU has) reads a half-precision cache.
 
+use super::super::elem::CacheElem;
 use std::arch::x86_64::*;
+
+/// Whether this CPU can run [`attend32`].
+pub(super) fn available() -> bool {
+    use std::arch::is_x86_feature_detected as has;
+    has!("avx2") && has!("fma") && has!("f16c")
+}
 
 /// Eight vectors to the vector of their sums (lane l = the sum of `v[l]`): two rounds of
 /// pairwise adds within 128-bit lanes, then one across them.
@@ -96,8 +104,12 @@ pub(super) fn sums8_of(x: &[f32; 64]) -> [f32; 8] {
 
 /// The caller guarantees the features and that `k`, `v` hold `len` rows of 32 floats,
 /// `q` and `out` 32 and `scores` at least `len`.
-#[target_feature(enable = "avx2,fma")]
-pub(super) unsafe fn attend32(head: super::Head, scores: &mut [f32], out: &mut [f32]) {
+#[target_feature(enable = "avx2,fma,f16c")]
+pub(super) unsafe fn attend32<E: CacheElem>(
+    head: super::Head<E>,
+    scores: &mut [f32],
+    out: &mut [f32],
+) {
     let super::Head {
         q,
         k,
@@ -112,15 +124,11 @@ pub(super) unsafe fn attend32(head: super::Head, scores: &mut [f32], out: &mut [
     // Two chains of two multiply-adds, so a key's four products do not wait in one line.
     let dot = |j: usize| {
         let r = kp.add(32 * j);
-        let a = _mm256_fmadd_ps(
-            qv[1],
-            _mm256_loadu_ps(r.add(8)),
-            _mm256_mul_ps(qv[0], _mm256_loadu_ps(r)),
-        );
+        let a = _mm256_fmadd_ps(qv[1], E::load8(r.add(8)), _mm256_mul_ps(qv[0], E::load8(r)));
         let b = _mm256_fmadd_ps(
             qv[3],
-            _mm256_loadu_ps(r.add(24)),
-            _mm256_mul_ps(qv[2], _mm256_loadu_ps(r.add(16))),
+            E::load8(r.add(24)),
+            _mm256_mul_ps(qv[2], E::load8(r.add(16))),
         );
         _mm256_add_ps(a, b)
     };
@@ -143,7 +151,7 @@ pub(super) unsafe fn attend32(head: super::Head, scores: &mut [f32], out: &mut [
             let p = _mm256_set1_ps(*sp.add(j + t));
             let r = vp.add(32 * (j + t));
             for c in 0..4 {
-                o[4 * t + c] = _mm256_fmadd_ps(p, _mm256_loadu_ps(r.add(8 * c)), o[4 * t + c]);
+                o[4 * t + c] = _mm256_fmadd_ps(p, E::load8(r.add(8 * c)), o[4 * t + c]);
             }
         }
         j += u;

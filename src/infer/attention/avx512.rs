@@ -1,6 +1,7 @@
 //! [`super::attend`] for 32-wide heads on AVX-512: a key or value row is two 16-lane
 //! registers.
 
+use super::super::elem::CacheElem;
 use std::arch::x86_64::*;
 
 /// Sixteen vectors to the vector of their sums (lane l = the sum of `v[l]`): pairs
@@ -85,7 +86,11 @@ pub(super) fn sums16_of(x: &[f32; 256]) -> [f32; 16] {
 
 /// [`super::attend`] for 32-wide heads: a key or value row is two 16-lane registers.
 #[target_feature(enable = "avx512f")]
-pub(super) unsafe fn attend32(head: super::Head, scores: &mut [f32], out: &mut [f32]) {
+pub(super) unsafe fn attend32<E: CacheElem>(
+    head: super::Head<E>,
+    scores: &mut [f32],
+    out: &mut [f32],
+) {
     let super::Head {
         q,
         k,
@@ -99,11 +104,7 @@ pub(super) unsafe fn attend32(head: super::Head, scores: &mut [f32], out: &mut [
     let (kp, vp, sp) = (k.as_ptr(), v.as_ptr(), scores.as_mut_ptr());
     let dot = |j: usize| {
         let r = kp.add(32 * j);
-        _mm512_fmadd_ps(
-            q1,
-            _mm512_loadu_ps(r.add(16)),
-            _mm512_mul_ps(q0, _mm512_loadu_ps(r)),
-        )
+        _mm512_fmadd_ps(q1, E::load16(r.add(16)), _mm512_mul_ps(q0, E::load16(r)))
     };
     let full = len / 16 * 16;
     for j in (0..full).step_by(16) {
@@ -125,8 +126,8 @@ pub(super) unsafe fn attend32(head: super::Head, scores: &mut [f32], out: &mut [
         for t in 0..u {
             let p = _mm512_set1_ps(*sp.add(j + t));
             let r = vp.add(32 * (j + t));
-            o[2 * t] = _mm512_fmadd_ps(p, _mm512_loadu_ps(r), o[2 * t]);
-            o[2 * t + 1] = _mm512_fmadd_ps(p, _mm512_loadu_ps(r.add(16)), o[2 * t + 1]);
+            o[2 * t] = _mm512_fmadd_ps(p, E::load16(r), o[2 * t]);
+            o[2 * t + 1] = _mm512_fmadd_ps(p, E::load16(r.add(16)), o[2 * t + 1]);
         }
         j += u;
     }
