@@ -40,6 +40,8 @@ pub struct ModelSetup {
     pub max_batch: usize,
     /// Use the ragged decode step when the model has one ([`BackendConfig::ragged`]).
     pub ragged: bool,
+    /// The inference thread's nice value ([`BackendConfig::nice`]).
+    pub decode_nice: i32,
     /// Skeleton library file whose entries join the model's candidates
     /// ([`crate::predict::library`]); `None`: the model alone.
     pub library: Option<PathBuf>,
@@ -188,6 +190,7 @@ fn load_models(m: &ModelSetup) -> Result<(Backend, Option<SkinModel>), AppError>
             max_batch: m.max_batch,
             kv_cache: true,
             ragged: m.ragged,
+            nice: m.decode_nice,
         },
     )?;
     Ok((backend, skin))

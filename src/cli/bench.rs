@@ -289,6 +289,7 @@ fn decode(a: DecodeArgs) -> anyhow::Result<()> {
             max_batch,
             kv_cache: kv,
             ragged: true,
+            ..BackendConfig::default()
         })?;
         anyhow::ensure!(
             a.tokens + 2 <= backend.info().max_tokens,
@@ -392,6 +393,7 @@ fn skeleton(a: SkeletonArgs) -> anyhow::Result<()> {
         max_batch: a.samples.max(1),
         kv_cache: true,
         ragged: true,
+        ..BackendConfig::default()
     })?;
     let cfg = PredictConfig {
         samples: a.samples,

@@ -76,6 +76,7 @@ pub fn run(a: EvalArgs) -> anyhow::Result<()> {
             max_batch: a.decode.samples.max(1),
             kv_cache: true,
             ragged: true,
+            ..BackendConfig::default()
         })?;
         let mut cfg = a.decode.predict_config(None);
         let lib = match &a.library_split {

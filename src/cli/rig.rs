@@ -265,6 +265,7 @@ fn predict(a: &RigArgs, mesh: &mesh::Mesh) -> anyhow::Result<Skeleton> {
         max_batch: a.decode.samples.max(1),
         kv_cache: true,
         ragged: true,
+        ..BackendConfig::default()
     })?;
     let mut cfg = a.decode.predict_config(a.category.clone());
     cfg.library = a.model.load_library()?;

@@ -45,6 +45,12 @@ pub struct ServeArgs {
     /// Most candidate sequences decoded together, across all jobs.
     #[arg(long, env = "RIGSERVE_MAX_BATCH", default_value_t = 32)]
     pub max_batch: usize,
+    /// Nice value of the inference thread (-20..19; 0: the process's). High by default:
+    /// under load the jobs' own CPU work goes first and their skeleton candidates wait
+    /// for each other to share decode steps; with a core free it changes nothing.
+    #[arg(long, env = "RIGSERVE_DECODE_NICE", default_value_t = 19,
+          value_parser = clap::value_parser!(i32).range(-20..=19))]
+    pub decode_nice: i32,
     #[command(flatten)]
     pub limits: LimitArgs,
     /// Largest upload for the synchronous `POST /v1/rig`, in bytes.
@@ -63,8 +69,8 @@ pub struct ServeArgs {
     /// worker in this process (API only).
     #[arg(long, env = "RIGSERVE_WORKERS", default_value_t = 8)]
     pub workers: usize,
-    /// Of those, jobs skinning and exporting at once (CPU-bound); 0: one core fewer than
-    /// the machine has (at least 1), which leaves a core to the decoder.
+    /// Of those, jobs skinning and exporting at once (CPU-bound); 0: as many as the
+    /// machine has cores.
     #[arg(long, env = "RIGSERVE_CPU_JOBS", default_value_t = 0)]
     pub cpu_jobs: usize,
     /// Queued jobs at most; more get 429.
@@ -135,6 +141,7 @@ pub fn run(a: ServeArgs) -> anyhow::Result<()> {
         threads: a.model.threads,
         max_batch: a.max_batch,
         ragged: !a.model.dense_decode,
+        decode_nice: a.decode_nice,
         library: a.model.library_path(),
     });
     cfg.limits = a.limits.limits();

@@ -84,6 +84,9 @@ pub struct BackendConfig {
     /// Decode with the model's ragged step (`decoder_step.onnx`) when it has one: each
     /// row attends over its own length instead of the batch's longest.
     pub ragged: bool,
+    /// The inference thread's nice value (0: the process's): a server sets it high so
+    /// that under load rows wait for each other and share steps ([`super::priority`]).
+    pub nice: i32,
 }
 
 impl Default for BackendConfig {
@@ -92,6 +95,7 @@ impl Default for BackendConfig {
             max_batch: 32,
             kv_cache: true,
             ragged: true,
+            nice: 0,
         }
     }
 }
@@ -335,9 +339,17 @@ impl Backend {
             running: Vec::new(),
             metrics: metrics.clone(),
         };
+        let nice = config.nice;
         let thread = std::thread::Builder::new()
             .name("rigserve-infer".into())
-            .spawn(move || worker.run())
+            .spawn(move || {
+                if nice != 0 {
+                    if let Err(e) = super::priority::set_thread_nice(nice) {
+                        tracing::warn!(nice, error = %e, "cannot set the inference thread's priority");
+                    }
+                }
+                worker.run()
+            })
             .map_err(|e| {
                 InferError::Environment(format!("cannot start the inference thread: {e}"))
             })?;

@@ -28,6 +28,7 @@ mod error;
 mod kv;
 mod model;
 mod prefill;
+mod priority;
 mod ragged;
 mod runtime;
 pub mod sampling;

@@ -1,11 +1,12 @@
 //! A counting semaphore for the CPU-heavy stages of jobs (skinning and export).
 //!
 //! Workers decide how many jobs are in flight, and so how many skeleton candidates share
-//! each decode batch on the inference thread: the more, the cheaper each token. But every
-//! in-flight job also skins on a worker thread, and on a small machine a few concurrent
-//! skinnings starve the inference thread, which then decodes in small batches again. So
-//! the two are set apart: many jobs may wait on the decoder, and only `permits` of them
-//! skin at once (by default one core fewer than the machine has, leaving one for decode).
+//! each decode batch on the inference thread: the more, the cheaper each token. Every
+//! in-flight job also skins on a worker thread; more skinnings at once than cores only
+//! add memory and switches, so `permits` of them run at once, by default one per core.
+//! The decoder does not need a core kept for it: it runs at a lower priority
+//! (`--decode-nice`), so under load its rows wait for each other and share steps, the
+//! cheaper way to decode (README, "Service load").
 
 use std::sync::{Condvar, Mutex};
 use std::time::Duration;
@@ -37,9 +38,9 @@ impl CpuSlots {
         }
     }
 
-    /// One core fewer than the machine has, at least one.
+    /// One per core.
     pub fn default_permits() -> usize {
-        std::thread::available_parallelism().map_or(1, |n| n.get().saturating_sub(1).max(1))
+        std::thread::available_parallelism().map_or(1, |n| n.get())
     }
 
     /// Blocks until a slot is free; `None` when `canceled` turns true first.

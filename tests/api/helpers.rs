@@ -28,6 +28,7 @@ pub fn model_setup() -> ModelSetup {
         threads: 1,
         max_batch: 16,
         ragged: true,
+        decode_nice: 0,
         library: None,
     }
 }
