@@ -441,6 +441,59 @@ fn learned_weights_are_well_formed_and_keep_the_per_part_rules() {
     }
 }
 
+/// The mesh with every triangle given its own three vertices, as a flat-shaded glTF
+/// stores it: copies of a position differ only in their faces (so in their normals).
+fn split_per_triangle(mesh: &Mesh) -> Mesh {
+    let mut out = Mesh::default();
+    for t in &mesh.triangles {
+        let base = out.positions.len() as u32;
+        out.positions
+            .extend(t.iter().map(|&i| mesh.positions[i as usize]));
+        out.triangles.push([base, base + 1, base + 2]);
+    }
+    out
+}
+
+#[test]
+fn copies_of_a_position_get_the_same_learned_weights() {
+    let model = shipped_model();
+    let cfg = SkinConfig::default();
+    let (mesh, skel) = two_legs();
+    let split = split_per_triangle(&mesh);
+    let w = skin_with(&split, &skel, &cfg, Some(&model)).unwrap();
+    assert_well_formed(&w, split.positions.len(), skel.len());
+    let mut at: HashMap<[u32; 3], usize> = HashMap::new();
+    let mut seams = 0;
+    for (v, p) in split.positions.iter().enumerate() {
+        let first = *at.entry(p.to_array().map(f32::to_bits)).or_insert(v);
+        if first != v {
+            seams += 1;
+            assert_eq!(
+                w.per_vertex[v], w.per_vertex[first],
+                "copies {first} and {v} at {p}"
+            );
+        }
+    }
+    assert!(
+        seams > 1000,
+        "the split mesh has seams everywhere ({seams})"
+    );
+    // And the weights are those of the welded mesh.
+    let welded = skin_with(&mesh, &skel, &cfg, Some(&model)).unwrap();
+    let index: HashMap<[u32; 3], usize> = mesh
+        .positions
+        .iter()
+        .enumerate()
+        .map(|(v, p)| (p.to_array().map(f32::to_bits), v))
+        .collect();
+    for (v, p) in split.positions.iter().enumerate() {
+        assert_eq!(
+            w.per_vertex[v],
+            welded.per_vertex[index[&p.to_array().map(f32::to_bits)]]
+        );
+    }
+}
+
 #[test]
 fn learned_method_without_a_model_is_refused() {
     let tmp = tempfile::tempdir().unwrap();

@@ -3,7 +3,8 @@
 //! Per item (a file, or one of its augmented variations): the features of
 //! [`crate::rig::skin::features`] for a random subset of the vertices the artist weighted,
 //! and the artist's weight on each candidate bone. Rigidly bound vertices are left out:
-//! the model never scores them.
+//! the model never scores them. As in serving, vertices at one position are one row
+//! ([`Welded`]), with the weights of the first of them.
 //!
 //! Output, in `--out` (little-endian, rows of all items back to back):
 //! - `vert.f32` rows × 6, `pair.f32` rows × k × 11, `cand.i32` rows × k (`-1` pads),
@@ -19,7 +20,7 @@ use crate::mesh::sample::SplitMix64;
 use crate::mesh::{self, Limits, Mesh};
 use crate::rig::groundtruth;
 use crate::rig::skin::features::{features, BONE_FEATURES, PAIR_FEATURES, VERT_FEATURES};
-use crate::rig::skin::{candidates_timed, SkinConfig};
+use crate::rig::skin::{candidates_timed, SkinConfig, Welded};
 use serde::Serialize;
 use std::io::Write;
 use std::path::Path;
@@ -49,6 +50,7 @@ struct Item<'a> {
     bone_offset: usize,
     bones: usize,
     k: usize,
+    /// Distinct vertex positions of the item (rows are drawn from them).
     vertices: usize,
 }
 
@@ -122,12 +124,12 @@ pub fn build_skin(
             } else {
                 augment(&mesh.positions, &gt.skeleton, &gt.weights, &aug_cfg, seed)
             };
-            let posed = Mesh {
+            let posed = Welded::new(&Mesh {
                 positions,
                 triangles: mesh.triangles.clone(),
                 ..Mesh::default()
-            };
-            let cands = match candidates_timed(&posed, &skel, &cfg.skin, cfg.k) {
+            });
+            let cands = match candidates_timed(&posed.mesh, &skel, &cfg.skin, cfg.k) {
                 Ok((c, _)) => c,
                 Err(err) => {
                     summary
@@ -136,15 +138,15 @@ pub fn build_skin(
                     break;
                 }
             };
-            let f = features(&posed, &skel, &cands, &cfg.skin, cfg.k);
+            let f = features(&posed.mesh, &skel, &cands, &cfg.skin, cfg.k);
+            let artist = |r: usize| {
+                gt.weights
+                    .per_vertex
+                    .get(posed.original(f.rows[r]) as usize)
+            };
             // Rows the artist weighted, a random subset when there are more than asked.
             let mut pick: Vec<usize> = (0..f.rows.len())
-                .filter(|&r| {
-                    gt.weights
-                        .per_vertex
-                        .get(f.rows[r] as usize)
-                        .is_some_and(|l| l.iter().any(|x| x.1 > 0.0))
-                })
+                .filter(|&r| artist(r).is_some_and(|l| l.iter().any(|x| x.1 > 0.0)))
                 .collect();
             let mut rng = SplitMix64::new(seed ^ 0x51_4B1D);
             for i in (1..pick.len()).rev() {
@@ -157,7 +159,7 @@ pub fn build_skin(
             }
             let k = f.k;
             for &r in &pick {
-                let gtw = &gt.weights.per_vertex[f.rows[r] as usize];
+                let gtw = artist(r).expect("picked rows have artist weights");
                 let total: f32 = gtw.iter().map(|x| x.1.max(0.0)).sum();
                 f32s(
                     &mut w.vert,
@@ -187,7 +189,7 @@ pub fn build_skin(
                 bone_offset,
                 bones: f.bones(),
                 k,
-                vertices: posed.positions.len(),
+                vertices: posed.mesh.positions.len(),
             };
             debug_assert_eq!(f.bone.len(), f.bones() * BONE_FEATURES);
             row_offset += pick.len();

@@ -27,8 +27,7 @@ fn find(parent: &mut [u32], mut i: u32) -> u32 {
 
 pub fn components(positions: &[Vec3], triangles: &[[u32; 3]]) -> Components {
     let mut weld: HashMap<[u32; 3], u32> = HashMap::with_capacity(positions.len());
-    // -0.0 and 0.0 are the same place.
-    let key = |p: Vec3| (p + Vec3::ZERO).to_array().map(f32::to_bits);
+    let key = super::weld::key;
     let welded: Vec<u32> = positions
         .iter()
         .map(|&p| {

@@ -25,6 +25,7 @@ mod learned;
 mod validate;
 mod voxel;
 mod weights;
+mod weld;
 
 use crate::mesh::Mesh;
 use crate::rig::metrics::Segment;
@@ -36,6 +37,7 @@ pub use learned::from_scores;
 use serde::Serialize;
 use std::time::Instant;
 use voxel::{Grid, Region};
+pub use weld::Welded;
 
 /// Candidate bones per vertex the learned model chooses among: more than the four kept
 /// influences, so it can pass over bones artists leave unweighted.
@@ -183,17 +185,20 @@ pub fn skin_with(
     skin_with_timed(mesh, skeleton, cfg, model).map(|(w, _)| w)
 }
 
-/// [`skin_with`], also reporting where the time went.
+/// [`skin_with`], also reporting where the time went. Vertices at the same position
+/// (glTF's seams) are skinned once and get the same weights ([`weld`]).
 pub fn skin_with_timed(
     mesh: &Mesh,
     skeleton: &Skeleton,
     cfg: &SkinConfig,
     model: Option<&dyn CandidateScorer>,
 ) -> Result<(SkinWeights, SkinTimings), SkinError> {
-    match model {
-        Some(m) => learned::skin_learned_timed(mesh, skeleton, cfg, m),
-        None => skin_timed(mesh, skeleton, cfg),
-    }
+    let welded = Welded::new(mesh);
+    let (w, times) = match model {
+        Some(m) => learned::skin_learned_timed(&welded.mesh, skeleton, cfg, m)?,
+        None => geometric_timed(&welded.mesh, skeleton, cfg)?,
+    };
+    Ok((welded.spread(&w), times))
 }
 
 /// How a part of the mesh chooses its bones.
@@ -208,6 +213,15 @@ enum Binding {
 
 /// [`skin`], also reporting where the time went.
 pub fn skin_timed(
+    mesh: &Mesh,
+    skeleton: &Skeleton,
+    cfg: &SkinConfig,
+) -> Result<(SkinWeights, SkinTimings), SkinError> {
+    skin_with_timed(mesh, skeleton, cfg, None)
+}
+
+/// Geometric weights of every vertex of `mesh` as it is (no welding).
+fn geometric_timed(
     mesh: &Mesh,
     skeleton: &Skeleton,
     cfg: &SkinConfig,
