@@ -145,8 +145,10 @@ impl Volume {
     }
 
     /// Fills `dist` (one entry per grid cell) with the geodesic distance from `seeds`,
-    /// in tenths of a cell; cells that are not reached stay [`UNREACHED`]. Pass the same
-    /// `dist` and `ring` to every call: only the cells the last field set are reset.
+    /// in tenths of a cell; solid cells that are not reached stay [`UNREACHED`], and cells
+    /// outside the solid hold 0, which no path can improve on, so the walk needs no
+    /// separate look at `solid` per neighbour. Pass the same `dist` and `ring` to every
+    /// call: only the cells the last field set are reset.
     ///
     /// With `bounds = Some((nearest, joins))`, the field stops wherever `nearest.k`
     /// fields that joined `nearest` are strictly nearer (see [`Nearest`]): those cells,
@@ -185,7 +187,7 @@ impl Volume {
             }
         } else {
             dist.clear();
-            dist.resize(self.solid.len(), UNREACHED);
+            dist.extend(self.solid.iter().map(|&s| if s { UNREACHED } else { 0 }));
         }
         ring.clear();
         let Some(start) = seeds.iter().map(|s| s.1).min() else {
@@ -219,7 +221,7 @@ impl Volume {
                     // The grid's empty border keeps every neighbour of a solid cell inside.
                     let n = (c as isize + o) as usize;
                     let nd = cur + w;
-                    if self.solid[n] && nd < dist[n] {
+                    if nd < dist[n] {
                         dist[n] = nd;
                         ring.push(nd, n as u32);
                     }
@@ -440,7 +442,7 @@ mod tests {
         assert_eq!(dist[v.grid.index([5, 2, 2])], 30);
         assert_eq!(dist[v.grid.index([5, 5, 2])], 42);
         assert_eq!(dist[v.grid.index([5, 5, 5])], 51);
-        assert_eq!(dist[v.grid.index([0, 0, 0])], UNREACHED);
+        assert_eq!(dist[v.grid.index([0, 0, 0])], 0, "outside the solid");
     }
 
     #[test]
