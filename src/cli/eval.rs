@@ -91,22 +91,22 @@ pub fn run(a: EvalArgs) -> anyhow::Result<()> {
             }
             None => a.model.load_library()?.map(|l| (*l).clone()),
         };
-        // A mesh must never be rigged from its own entry: the scored files leave the
-        // library first.
+        // A mesh is never rigged from its own entry: each scored file leaves the library
+        // while it is scored (the rest of a split scored against its own library is
+        // leave-one-out).
         if let Some(lib) = lib {
             let scored: std::collections::HashSet<String> =
                 rigserve::eval::entries_in(&a.dataset, split)?
                     .into_iter()
                     .map(|e| e.file)
                     .collect();
-            let kept = lib.without(&scored);
-            if kept.entries.len() < lib.entries.len() {
+            let own = lib.entries.len() - lib.without(&scored).entries.len();
+            if own > 0 {
                 eprintln!(
-                    "skeleton library: left out {} entries that are files being scored",
-                    lib.entries.len() - kept.entries.len()
+                    "skeleton library: left out {own} entries, each while its own file is scored"
                 );
             }
-            cfg.library = Some(std::sync::Arc::new(kept));
+            cfg.library = Some(std::sync::Arc::new(lib));
         }
         rigserve::eval::eval_model_skeleton(
             &a.dataset,

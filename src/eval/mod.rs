@@ -351,8 +351,17 @@ pub fn eval_model_skeleton(
     limits: &Limits,
 ) -> Result<Report, EvalError> {
     let models = each_rig(dataset, split, limits, |e, mesh, gt, report| {
+        // Never the scored file's own entry: leave-one-out when the library holds the split.
+        let library = cfg.library.as_ref().map(|l| {
+            if l.entries.iter().any(|x| x.name == e.file) {
+                std::sync::Arc::new(l.without(&[e.file.clone()].into()))
+            } else {
+                l.clone()
+            }
+        });
         let cfg = crate::predict::PredictConfig {
             category: category_hint.then(|| e.category.clone()),
+            library,
             ..cfg.clone()
         };
         match crate::predict::predict_skeleton(backend, mesh, &cfg, None) {
