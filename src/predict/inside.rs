@@ -4,7 +4,7 @@
 //! mesh along the inward normal of the nearest surface sample, when the body is found
 //! within reach. Leave-one-out on `train` (`rigserve eval --retrieval --split train`): CD-J2J
 //! 0.0626 -> 0.0617, B2B 0.0556 -> 0.0535; the reach (0.05 to 0.5 tried) matters little.
-//! The model's decoded candidates get the same once they are scored: on 300 synthetic rigs
+//! The model's skeleton gets the same once chosen among the candidates: on 300 synthetic rigs
 //! it never trained on (`training.synth.generate --seed 77`), the model alone goes from
 //! CD-J2J 0.0649 to 0.0593 and B2B 0.0608 to 0.0521 (mean of seeds 0–2).
 
