@@ -295,9 +295,10 @@ pub fn candidates_timed(
     let (lo, hi) = mesh.bounds();
     let grid = Grid::around(lo, hi, cfg.resolution);
     let whole = Region::whole(&grid);
-    let solid = voxel::solid(pos, &mesh.triangles, 0..mesh.triangles.len(), &grid, &whole);
-    let volume = Volume::new(grid, solid);
     let parts = components::components(pos, &mesh.triangles);
+    // Each triangle is rasterized once, for its part: every part covers its triangles'
+    // cells, so the parts' surfaces together are the whole mesh's surface.
+    let mut surface = vec![false; whole.len()];
     let part_solids: Vec<(Region, Vec<bool>)> = parts
         .triangles
         .iter()
@@ -306,17 +307,14 @@ pub fn candidates_timed(
                 (Vec3::splat(f32::MAX), Vec3::splat(f32::MIN)),
                 |(a, b), i| (a.min(pos[i as usize]), b.max(pos[i as usize])),
             );
-            let region = Region::around(&volume.grid, plo, phi, 2);
-            let s = voxel::solid(
-                pos,
-                &mesh.triangles,
-                tris.iter().copied(),
-                &volume.grid,
-                &region,
-            );
-            (region, s)
+            let region = Region::around(&grid, plo, phi, 2);
+            let s = voxel::surface(pos, &mesh.triangles, tris.iter().copied(), &grid, &region);
+            voxel::merge_into(&mut surface, &grid, &region, &s);
+            let solid = voxel::fill(&s, &region);
+            (region, solid)
         })
         .collect();
+    let volume = Volume::new(grid, voxel::fill(&surface, &whole));
     times.voxelize_ms = ms(t0);
     times.solid_cells = volume.cells.len();
     times.parts = parts.triangles.len();

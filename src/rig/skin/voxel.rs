@@ -124,10 +124,10 @@ impl Region {
     }
 }
 
-/// Solid cells (surface and enclosed interior) of the triangles `tris` within `region`,
-/// one flag per region cell. The region must leave a layer of empty cells around the
-/// triangles for the outside fill to start from.
-pub fn solid(
+/// The cells of `region` that the triangles `tris` overlap, one flag per region cell.
+/// Every cell a triangle overlaps is inside the box of its corners' cells, so a region
+/// holding that box sees all of the triangle's cells.
+pub fn surface(
     positions: &[Vec3],
     triangles: &[[u32; 3]],
     tris: impl IntoIterator<Item = usize>,
@@ -153,7 +153,30 @@ pub fn solid(
             }
         }
     }
-    // Outside: 6-connected fill from every border cell of the region.
+    surface
+}
+
+/// Sets the flags of `grid_flags` (one per cell of `grid`) that are set in `surface` (one
+/// per cell of `region`, a box inside `grid`).
+pub fn merge_into(grid_flags: &mut [bool], grid: &Grid, region: &Region, surface: &[bool]) {
+    let [nx, ny, nz] = region.dims;
+    for z in 0..nz {
+        for y in 0..ny {
+            let row = (z * ny + y) * nx;
+            let at = grid.index([region.lo[0], region.lo[1] + y, region.lo[2] + z]);
+            for (g, &s) in grid_flags[at..at + nx]
+                .iter_mut()
+                .zip(&surface[row..row + nx])
+            {
+                *g |= s;
+            }
+        }
+    }
+}
+
+/// Solid cells of `region` given its surface cells: everything a 6-connected fill from
+/// the region's border reaches without crossing the surface is outside.
+pub fn fill(surface: &[bool], region: &Region) -> Vec<bool> {
     let [nx, ny, nz] = region.dims;
     let mut outside = vec![false; region.len()];
     let mut stack = Vec::new();
@@ -247,6 +270,50 @@ fn min_max(xs: impl Iterator<Item = f32>) -> (f32, f32) {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Solid cells (surface and enclosed interior) of the triangles `tris` within
+    /// `region`.
+    fn solid(
+        positions: &[Vec3],
+        triangles: &[[u32; 3]],
+        tris: impl IntoIterator<Item = usize>,
+        grid: &Grid,
+        region: &Region,
+    ) -> Vec<bool> {
+        fill(&surface(positions, triangles, tris, grid, region), region)
+    }
+
+    #[test]
+    fn parts_surfaces_merged_are_the_whole_surface() {
+        // Two overlapping boxes and a far one, each its own part.
+        let mut p = Vec::new();
+        let mut t = Vec::new();
+        for (lo, hi) in [
+            (Vec3::ZERO, Vec3::ONE),
+            (Vec3::splat(0.5), Vec3::new(1.7, 1.2, 1.4)),
+            (Vec3::new(3.0, 0.2, 0.1), Vec3::new(3.3, 0.9, 0.4)),
+        ] {
+            let (bp, bt) = cube(lo, hi);
+            let base = p.len() as u32;
+            p.extend(bp);
+            t.extend(bt.into_iter().map(|tri: [u32; 3]| tri.map(|i| i + base)));
+        }
+        let grid = Grid::around(Vec3::ZERO, Vec3::new(3.3, 1.2, 1.4), 24);
+        let whole = Region::whole(&grid);
+        let expect = surface(&p, &t, 0..t.len(), &grid, &whole);
+        let mut merged = vec![false; whole.len()];
+        for part in [0..12, 12..24, 24..36] {
+            let (lo, hi) = part.clone().flat_map(|i| t[i]).fold(
+                (Vec3::splat(f32::MAX), Vec3::splat(f32::MIN)),
+                |(a, b), i| (a.min(p[i as usize]), b.max(p[i as usize])),
+            );
+            let region = Region::around(&grid, lo, hi, 2);
+            let s = surface(&p, &t, part, &grid, &region);
+            merge_into(&mut merged, &grid, &region, &s);
+        }
+        assert!(expect.iter().filter(|&&s| s).count() > 100);
+        assert_eq!(merged, expect);
+    }
 
     /// A closed axis-aligned box mesh, 12 triangles.
     pub(crate) fn cube(lo: Vec3, hi: Vec3) -> (Vec<Vec3>, Vec<[u32; 3]>) {
