@@ -178,47 +178,63 @@ pub fn merge_into(grid_flags: &mut [bool], grid: &Grid, region: &Region, surface
 /// the region's border reaches without crossing the surface is outside.
 pub fn fill(surface: &[bool], region: &Region) -> Vec<bool> {
     let [nx, ny, nz] = region.dims;
+    // Border cells that are not surface are outside to begin with. Only interior cells
+    // are ever pushed, so a popped cell's six neighbours are all in the region and the
+    // fill's loop needs no coordinates or bounds checks; a border neighbour is already
+    // outside or surface and is never pushed.
     let mut outside = vec![false; region.len()];
-    let mut stack = Vec::new();
-    let idx = |x: usize, y: usize, z: usize| x + nx * (y + ny * z);
+    let mut stack: Vec<usize> = Vec::new();
+    let (sy, sz) = (nx, nx * ny);
+    // Region dimensions are at least 1, so `n - 1` does not wrap.
+    let interior = |x: usize, y: usize, z: usize| {
+        (1..nx - 1).contains(&x) && (1..ny - 1).contains(&y) && (1..nz - 1).contains(&z)
+    };
+    let mut border = Vec::new();
     for z in 0..nz {
         for y in 0..ny {
-            for x in 0..nx {
-                let border =
-                    x == 0 || y == 0 || z == 0 || x + 1 == nx || y + 1 == ny || z + 1 == nz;
-                let i = idx(x, y, z);
-                if border && !surface[i] {
+            let face = z == 0 || y == 0 || z + 1 == nz || y + 1 == ny;
+            let mut mark = |x: usize| {
+                let i = x + sy * y + sz * z;
+                if !surface[i] && !outside[i] {
                     outside[i] = true;
-                    stack.push((x, y, z));
+                    border.push((x, y, z));
+                }
+            };
+            if face {
+                (0..nx).for_each(&mut mark);
+            } else {
+                mark(0);
+                mark(nx - 1);
+            }
+        }
+    }
+    for (x, y, z) in border {
+        let near = [
+            (x.wrapping_sub(1), y, z),
+            (x + 1, y, z),
+            (x, y.wrapping_sub(1), z),
+            (x, y + 1, z),
+            (x, y, z.wrapping_sub(1)),
+            (x, y, z + 1),
+        ];
+        for (x, y, z) in near {
+            // A wrapped coordinate is huge, so `interior` rejects it too.
+            if interior(x, y, z) {
+                let i = x + sy * y + sz * z;
+                if !surface[i] && !outside[i] {
+                    outside[i] = true;
+                    stack.push(i);
                 }
             }
         }
     }
-    while let Some((x, y, z)) = stack.pop() {
-        let mut visit = |x: usize, y: usize, z: usize| {
-            let i = idx(x, y, z);
-            if !surface[i] && !outside[i] {
-                outside[i] = true;
-                stack.push((x, y, z));
+    while let Some(i) = stack.pop() {
+        for j in [i - 1, i + 1, i - sy, i + sy, i - sz, i + sz] {
+            if !surface[j] && !outside[j] {
+                outside[j] = true;
+                // A border cell here is surface or outside already, so j is interior.
+                stack.push(j);
             }
-        };
-        if x > 0 {
-            visit(x - 1, y, z);
-        }
-        if x + 1 < nx {
-            visit(x + 1, y, z);
-        }
-        if y > 0 {
-            visit(x, y - 1, z);
-        }
-        if y + 1 < ny {
-            visit(x, y + 1, z);
-        }
-        if z > 0 {
-            visit(x, y, z - 1);
-        }
-        if z + 1 < nz {
-            visit(x, y, z + 1);
         }
     }
     outside.iter().map(|o| !o).collect()
@@ -281,6 +297,74 @@ mod tests {
         region: &Region,
     ) -> Vec<bool> {
         fill(&surface(positions, triangles, tris, grid, region), region)
+    }
+
+    /// The fill the plain way: every cell's six neighbours with bounds checks, from every
+    /// non-surface border cell.
+    fn reference_fill(surface: &[bool], [nx, ny, nz]: [usize; 3]) -> Vec<bool> {
+        let mut outside = vec![false; surface.len()];
+        let idx = |x: usize, y: usize, z: usize| x + nx * (y + ny * z);
+        let mut stack = Vec::new();
+        for z in 0..nz {
+            for y in 0..ny {
+                for x in 0..nx {
+                    let border =
+                        x == 0 || y == 0 || z == 0 || x + 1 == nx || y + 1 == ny || z + 1 == nz;
+                    if border && !surface[idx(x, y, z)] {
+                        outside[idx(x, y, z)] = true;
+                        stack.push([x, y, z]);
+                    }
+                }
+            }
+        }
+        while let Some(c) = stack.pop() {
+            for k in 0..3 {
+                for up in [false, true] {
+                    let mut n = c;
+                    if up {
+                        n[k] += 1;
+                    } else if n[k] > 0 {
+                        n[k] -= 1;
+                    } else {
+                        continue;
+                    }
+                    if n[0] < nx && n[1] < ny && n[2] < nz {
+                        let i = idx(n[0], n[1], n[2]);
+                        if !surface[i] && !outside[i] {
+                            outside[i] = true;
+                            stack.push(n);
+                        }
+                    }
+                }
+            }
+        }
+        outside.iter().map(|o| !o).collect()
+    }
+
+    #[test]
+    fn fill_matches_the_plain_fill_on_random_walls() {
+        let mut state = 0x9e37_79b9_7f4a_7c15u64;
+        let mut next = move || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            state
+        };
+        let mut enclosed = 0;
+        for round in 0..400 {
+            let dims = [0, 1, 2].map(|_| 1 + (next() % 9) as usize);
+            let density = [10, 30, 50, 70][round % 4];
+            let region = Region { lo: [0; 3], dims };
+            let surface: Vec<bool> = (0..region.len()).map(|_| next() % 100 < density).collect();
+            let got = fill(&surface, &region);
+            assert_eq!(got, reference_fill(&surface, dims), "dims {dims:?}");
+            enclosed += got
+                .iter()
+                .zip(&surface)
+                .filter(|(s, w)| **s && !**w)
+                .count();
+        }
+        assert!(enclosed > 0, "some rounds must enclose empty cells");
     }
 
     #[test]
