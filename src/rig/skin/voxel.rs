@@ -287,18 +287,6 @@ fn min_max(xs: impl Iterator<Item = f32>) -> (f32, f32) {
 mod tests {
     use super::*;
 
-    /// Solid cells (surface and enclosed interior) of the triangles `tris` within
-    /// `region`.
-    fn solid(
-        positions: &[Vec3],
-        triangles: &[[u32; 3]],
-        tris: impl IntoIterator<Item = usize>,
-        grid: &Grid,
-        region: &Region,
-    ) -> Vec<bool> {
-        fill(&surface(positions, triangles, tris, grid, region), region)
-    }
-
     /// The fill the plain way: every cell's six neighbours with bounds checks, from every
     /// non-surface border cell.
     fn reference_fill(surface: &[bool], [nx, ny, nz]: [usize; 3]) -> Vec<bool> {
@@ -430,13 +418,13 @@ mod tests {
         let (p, t) = cube(Vec3::ZERO, Vec3::ONE);
         let grid = Grid::around(Vec3::ZERO, Vec3::ONE, 10);
         let region = Region::whole(&grid);
-        let s = solid(&p, &t, 0..t.len(), &grid, &region);
+        let s = fill(&surface(&p, &t, 0..t.len(), &grid, &region), &region);
         let mid = grid.index(grid.cell_of(Vec3::splat(0.5)));
         assert!(s[mid], "the middle of a closed box is solid");
         assert!(!s[0], "the corner of the grid is outside");
         // Without the top face, the fill gets in and only the walls stay solid.
         let open: Vec<usize> = (0..t.len()).filter(|&i| !(i == 6 || i == 7)).collect();
-        let s = solid(&p, &t, open, &grid, &region);
+        let s = fill(&surface(&p, &t, open, &grid, &region), &region);
         assert!(!s[mid]);
         let wall = grid.index(grid.cell_of(Vec3::new(0.0, 0.5, 0.5)));
         assert!(s[wall]);
