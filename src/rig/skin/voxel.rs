@@ -189,15 +189,30 @@ pub fn fill(surface: &[bool], region: &Region) -> Vec<bool> {
     let interior = |x: usize, y: usize, z: usize| {
         (1..nx - 1).contains(&x) && (1..ny - 1).contains(&y) && (1..nz - 1).contains(&z)
     };
-    let mut border = Vec::new();
     for z in 0..nz {
         for y in 0..ny {
             let face = z == 0 || y == 0 || z + 1 == nz || y + 1 == ny;
             let mut mark = |x: usize| {
                 let i = x + sy * y + sz * z;
-                if !surface[i] && !outside[i] {
-                    outside[i] = true;
-                    border.push((x, y, z));
+                if surface[i] || outside[i] {
+                    return;
+                }
+                outside[i] = true;
+                let near = [
+                    (x.wrapping_sub(1), y, z),
+                    (x + 1, y, z),
+                    (x, y.wrapping_sub(1), z),
+                    (x, y + 1, z),
+                    (x, y, z.wrapping_sub(1)),
+                    (x, y, z + 1),
+                ];
+                // A wrapped coordinate is huge, so `interior` rejects it too.
+                for (x, y, z) in near.into_iter().filter(|&(x, y, z)| interior(x, y, z)) {
+                    let j = x + sy * y + sz * z;
+                    if !surface[j] && !outside[j] {
+                        outside[j] = true;
+                        stack.push(j);
+                    }
                 }
             };
             if face {
@@ -208,31 +223,10 @@ pub fn fill(surface: &[bool], region: &Region) -> Vec<bool> {
             }
         }
     }
-    for (x, y, z) in border {
-        let near = [
-            (x.wrapping_sub(1), y, z),
-            (x + 1, y, z),
-            (x, y.wrapping_sub(1), z),
-            (x, y + 1, z),
-            (x, y, z.wrapping_sub(1)),
-            (x, y, z + 1),
-        ];
-        for (x, y, z) in near {
-            // A wrapped coordinate is huge, so `interior` rejects it too.
-            if interior(x, y, z) {
-                let i = x + sy * y + sz * z;
-                if !surface[i] && !outside[i] {
-                    outside[i] = true;
-                    stack.push(i);
-                }
-            }
-        }
-    }
     while let Some(i) = stack.pop() {
         for j in [i - 1, i + 1, i - sy, i + sy, i - sz, i + sz] {
             if !surface[j] && !outside[j] {
                 outside[j] = true;
-                // A border cell here is surface or outside already, so j is interior.
                 stack.push(j);
             }
         }
