@@ -14,24 +14,11 @@ use axum::http::HeaderMap;
 use axum::response::sse::{Event, KeepAlive, Sse};
 use futures_util::Stream;
 use std::convert::Infallible;
-use tokio::sync::broadcast;
 
 #[derive(serde::Deserialize)]
 pub struct EventsQuery {
     /// For clients that cannot set headers (e.g. `EventSource` on a first connection).
     last_event_id: Option<i64>,
-}
-
-/// Waits until `id` changes (or wake-ups were dropped, which may include it).
-pub async fn changed(rx: &mut broadcast::Receiver<String>, id: &str) {
-    loop {
-        match rx.recv().await {
-            Ok(x) if x == id => return,
-            Ok(_) => {}
-            Err(broadcast::error::RecvError::Lagged(_)) => return,
-            Err(broadcast::error::RecvError::Closed) => std::future::pending::<()>().await,
-        }
-    }
 }
 
 pub async fn events(
@@ -48,7 +35,7 @@ pub async fn events(
         .and_then(|v| v.trim().parse::<i64>().ok())
         .or(q.last_event_id)
         .unwrap_or(0);
-    let mut rx = state.ctx.notifier.subscribe_changes();
+    let mut watch = state.ctx.notifier.watch(&id);
     let stream = async_stream::stream! {
         loop {
             let events = match state.ctx.store.events_after(&id, last).await {
@@ -79,7 +66,7 @@ pub async fn events(
             }
             tokio::select! {
                 _ = state.shutdown.cancelled() => break,
-                _ = changed(&mut rx, &id) => {}
+                _ = watch.changed() => {}
                 _ = tokio::time::sleep(state.cfg.poll) => {}
             }
         }

@@ -5,7 +5,6 @@
 
 use super::auth::Caller;
 use super::error::ApiError;
-use super::events::changed;
 use super::jobs::submit;
 use super::AppState;
 use crate::jobs::{BlobKind, JobStatus};
@@ -33,7 +32,7 @@ pub async fn rig(
         }
         r
     };
-    let mut rx = state.ctx.notifier.subscribe_changes();
+    let mut watch = state.ctx.notifier.watch(&id);
     let deadline = tokio::time::Instant::now() + state.cfg.sync_timeout;
     let done = loop {
         match state.ctx.store.get(&id).await? {
@@ -42,7 +41,7 @@ pub async fn rig(
             None => return Err(ApiError::not_found()),
         }
         tokio::select! {
-            _ = changed(&mut rx, &id) => {}
+            _ = watch.changed() => {}
             _ = tokio::time::sleep(state.cfg.poll) => {}
             _ = tokio::time::sleep_until(deadline) => {
                 return Ok(job_headers(ApiError::new(

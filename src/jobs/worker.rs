@@ -87,7 +87,6 @@ impl Progress for JobProgress {
 
 impl Worker {
     async fn run(self) {
-        let mut queued = self.ctx.notifier.subscribe_queue();
         while !self.shutdown.is_cancelled() {
             match self.ctx.store.claim(&self.id, self.cfg.lease).await {
                 Ok(Some(job)) => {
@@ -100,7 +99,7 @@ impl Worker {
             }
             tokio::select! {
                 _ = self.shutdown.cancelled() => break,
-                _ = queued.recv() => {}
+                _ = self.ctx.notifier.next_queued() => {}
                 _ = tokio::time::sleep(self.cfg.poll) => {}
             }
         }
