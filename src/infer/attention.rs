@@ -39,6 +39,9 @@ pub struct Head<'a, E> {
     pub v: &'a [E],
     pub len: usize,
     pub scale: f32,
+    /// Where the next call will read keys, if known (null if not): the vectorized kernel
+    /// asks for them while it reads this call's values. Never dereferenced.
+    pub next_keys: *const E,
 }
 
 // Derived, these would ask `E: Copy` of the slices' elements for no reason.
@@ -82,6 +85,7 @@ fn portable<E: CacheElem>(head: Head<E>, scores: &mut [f32], out: &mut [f32]) {
         v,
         len,
         scale,
+        ..
     } = head;
     let dh = q.len();
     let scores = &mut scores[..len];
@@ -212,6 +216,8 @@ mod tests {
                     v: &v,
                     len,
                     scale,
+                    // Any address will do for a hint; the keys' own exercise the path.
+                    next_keys: k.as_ptr(),
                 };
                 let want = reference(&q, &wide(&k), &wide(&v), len, scale);
                 let mut kernels: Vec<(&str, Kernel<E>)> =
@@ -282,6 +288,7 @@ mod tests {
             v: &v,
             len: 1,
             scale: 0.2,
+            next_keys: std::ptr::null(),
         };
         attend(head, &mut [0.0], &mut out);
         for d in 0..32 {

@@ -224,6 +224,13 @@ impl<E: CacheElem> Kernel for RaggedAttentionKernel<E> {
                         v,
                         len: lens[r] + 1,
                         scale,
+                        // The next head's plane, or after the last head the next row's
+                        // first: the cache's next plane either way.
+                        next_keys: if r + 1 < b || i + 1 < h {
+                            ok.at(plane + cols * dh).cast_const()
+                        } else {
+                            std::ptr::null()
+                        },
                     };
                     attend(head, &mut scores, &mut out[i * dh..(i + 1) * dh]);
                 }

@@ -116,6 +116,7 @@ pub(super) unsafe fn attend32<E: CacheElem>(
         v,
         len,
         scale,
+        ..
     } = head;
     let sc = _mm256_set1_ps(scale);
     let qv: [__m256; 4] =

@@ -97,6 +97,7 @@ pub(super) unsafe fn attend32<E: CacheElem>(
         v,
         len,
         scale,
+        ..
     } = head;
     let sc = _mm512_set1_ps(scale);
     let q0 = _mm512_mul_ps(_mm512_loadu_ps(q.as_ptr()), sc);
@@ -111,6 +112,9 @@ pub(super) unsafe fn attend32<E: CacheElem>(
         let mut p = [_mm512_setzero_ps(); 16];
         for (l, p) in p.iter_mut().enumerate() {
             *p = dot(j + l);
+            // The values this head reads next: asked for while the keys are read, so
+            // the two streams are in flight together (see `next_keys` below).
+            _mm_prefetch::<_MM_HINT_T0>(vp.add(32 * (j + l)).cast());
         }
         _mm512_storeu_ps(sp.add(j), sums16(&p));
     }
@@ -120,12 +124,21 @@ pub(super) unsafe fn attend32<E: CacheElem>(
     let inv = softmax(&mut scores[..len]);
     // Four accumulator pairs: one pair would wait on its own multiply-add every key.
     let mut o = [_mm512_setzero_ps(); 8];
+    // A batch-16 step reads more cache than this CPU's caches keep from one step to the
+    // next, and each head's planes are short streams (some 200 positions of 64 bytes)
+    // that the hardware prefetcher picks up late. Asking for the next plane's keys while
+    // this one's values are read, and for the values while the keys are read, made the
+    // batch-16 step a fifth faster (README, "Another 2-core AMD EPYC Zen 5").
+    let next = head.next_keys;
     let mut j = 0;
     while j < len {
         let u = (len - j).min(4);
         for t in 0..u {
             let p = _mm512_set1_ps(*sp.add(j + t));
             let r = vp.add(32 * (j + t));
+            if !next.is_null() {
+                _mm_prefetch::<_MM_HINT_T0>(next.wrapping_add(32 * (j + t)).cast());
+            }
             o[2 * t] = _mm512_fmadd_ps(p, E::load16(r), o[2 * t]);
             o[2 * t + 1] = _mm512_fmadd_ps(p, E::load16(r.add(16)), o[2 * t + 1]);
         }
