@@ -135,7 +135,11 @@ pub(super) unsafe fn attend32<E: CacheElem>(
     };
     let full = len / 8 * 8;
     for j in (0..full).step_by(8) {
-        let p: [__m256; 8] = std::array::from_fn(|l| dot(j + l));
+        let p: [__m256; 8] = std::array::from_fn(|l| {
+            // As in the AVX-512 kernel: the values this head reads next.
+            _mm_prefetch::<_MM_HINT_T0>(vp.add(32 * (j + l)).cast());
+            dot(j + l)
+        });
         _mm256_storeu_ps(sp.add(j), sums8(&p));
     }
     for j in full..len {
@@ -145,12 +149,16 @@ pub(super) unsafe fn attend32<E: CacheElem>(
     // Two keys' accumulators (eight registers): one key's four would wait on their own
     // multiply-adds at every step.
     let mut o = [_mm256_setzero_ps(); 8];
+    let next = head.next_keys;
     let mut j = 0;
     while j < len {
         let u = (len - j).min(2);
         for t in 0..u {
             let p = _mm256_set1_ps(*sp.add(j + t));
             let r = vp.add(32 * (j + t));
+            if !next.is_null() {
+                _mm_prefetch::<_MM_HINT_T0>(next.wrapping_add(32 * (j + t)).cast());
+            }
             for c in 0..4 {
                 o[4 * t + c] = _mm256_fmadd_ps(p, E::load8(r.add(8 * c)), o[4 * t + c]);
             }
