@@ -36,7 +36,16 @@ pub struct Volume {
 }
 
 impl Volume {
-    pub fn new(grid: Grid, solid: Vec<bool>) -> Volume {
+    /// `solid` holds one entry per grid cell. Cells on the grid's outer layer are taken as
+    /// outside whatever it says (voxelization pads the mesh, so it never marks one): every
+    /// solid cell's 26 neighbours are then in the grid, which the walk relies on.
+    pub fn new(grid: Grid, mut solid: Vec<bool>) -> Volume {
+        assert_eq!(
+            solid.len(),
+            grid.dims.iter().product::<usize>(),
+            "one solid flag per grid cell"
+        );
+        clear_border(&grid, &mut solid);
         let cells: Vec<u32> = (0..solid.len())
             .filter(|&i| solid[i])
             .map(|i| i as u32)
@@ -217,12 +226,18 @@ impl Volume {
                         k.insert(c, cur);
                     }
                 }
+                // Only solid cells are ever pushed (the others hold 0, which no path
+                // improves on), and the grid's empty border keeps every neighbour of a
+                // solid cell inside the grid: no index below needs a bounds check.
+                debug_assert!(self.solid[c]);
                 for &(o, w) in &self.steps {
-                    // The grid's empty border keeps every neighbour of a solid cell inside.
-                    let n = (c as isize + o) as usize;
+                    let n = c.wrapping_add_signed(o);
                     let nd = cur + w;
-                    if nd < dist[n] {
-                        dist[n] = nd;
+                    // SAFETY: n is a neighbour of the solid cell c, so within the grid
+                    // (see above), and `dist` has one entry per grid cell.
+                    let d = unsafe { dist.get_unchecked_mut(n) };
+                    if nd < *d {
+                        *d = nd;
                         ring.push(nd, n as u32);
                     }
                 }
@@ -234,6 +249,21 @@ impl Volume {
     /// Converts a field value to mesh units.
     pub fn to_mesh(&self, units: u32) -> f32 {
         units as f32 / UNITS * self.grid.cell
+    }
+}
+
+/// Marks the grid's outer layer of cells not solid.
+fn clear_border(grid: &Grid, solid: &mut [bool]) {
+    let [nx, ny, nz] = grid.dims;
+    for z in 0..nz {
+        for y in 0..ny {
+            if z == 0 || y == 0 || z + 1 == nz || y + 1 == ny {
+                solid[grid.index([0, y, z])..=grid.index([nx - 1, y, z])].fill(false);
+            } else {
+                solid[grid.index([0, y, z])] = false;
+                solid[grid.index([nx - 1, y, z])] = false;
+            }
+        }
     }
 }
 
@@ -443,6 +473,31 @@ mod tests {
         assert_eq!(dist[v.grid.index([5, 5, 2])], 42);
         assert_eq!(dist[v.grid.index([5, 5, 5])], 51);
         assert_eq!(dist[v.grid.index([0, 0, 0])], 0, "outside the solid");
+    }
+
+    #[test]
+    fn the_grid_border_is_never_solid() {
+        // Solid everywhere, the outer layer included: the walk, whose neighbour indices are
+        // unchecked, must never step off the grid.
+        let dims = [5, 4, 6];
+        let grid = Grid {
+            origin: Vec3::ZERO,
+            cell: 1.0,
+            dims,
+        };
+        let v = Volume::new(grid, vec![true; dims.iter().product()]);
+        let interior = 3 * 2 * 4;
+        assert_eq!(v.cells.len(), interior);
+        assert!(!v.solid[v.grid.index([0, 1, 1])] && !v.solid[v.grid.index([4, 3, 5])]);
+        let (mut dist, mut ring) = (Vec::new(), Ring::default());
+        v.field(
+            &[(v.grid.index([1, 1, 1]) as u32, 0)],
+            &mut dist,
+            &mut ring,
+            None,
+        );
+        assert!(v.cells.iter().all(|&c| dist[c as usize] != UNREACHED));
+        assert_eq!(dist[v.grid.index([3, 2, 4])], 17 + 14 + 10);
     }
 
     #[test]
