@@ -446,6 +446,13 @@ impl Stencils {
 mod tests {
     use super::*;
 
+    /// The unbounded field from one cell.
+    fn field_from(v: &Volume, at: [usize; 3]) -> Vec<u32> {
+        let (mut dist, mut ring) = (Vec::new(), Ring::default());
+        v.field(&[(v.grid.index(at) as u32, 0)], &mut dist, &mut ring, None);
+        dist
+    }
+
     fn slab(dims: [usize; 3]) -> Volume {
         let grid = Grid {
             origin: Vec3::ZERO,
@@ -466,9 +473,7 @@ mod tests {
     #[test]
     fn field_follows_chamfer_steps() {
         let v = slab([12, 12, 12]);
-        let seed = v.grid.index([2, 2, 2]) as u32;
-        let (mut dist, mut ring) = (Vec::new(), Ring::default());
-        v.field(&[(seed, 0)], &mut dist, &mut ring, None);
+        let dist = field_from(&v, [2, 2, 2]);
         assert_eq!(dist[v.grid.index([5, 2, 2])], 30);
         assert_eq!(dist[v.grid.index([5, 5, 2])], 42);
         assert_eq!(dist[v.grid.index([5, 5, 5])], 51);
@@ -489,13 +494,7 @@ mod tests {
         let interior = 3 * 2 * 4;
         assert_eq!(v.cells.len(), interior);
         assert!(!v.solid[v.grid.index([0, 1, 1])] && !v.solid[v.grid.index([4, 3, 5])]);
-        let (mut dist, mut ring) = (Vec::new(), Ring::default());
-        v.field(
-            &[(v.grid.index([1, 1, 1]) as u32, 0)],
-            &mut dist,
-            &mut ring,
-            None,
-        );
+        let dist = field_from(&v, [1, 1, 1]);
         assert!(v.cells.iter().all(|&c| dist[c as usize] != UNREACHED));
         assert_eq!(dist[v.grid.index([3, 2, 4])], 17 + 14 + 10);
     }
@@ -512,13 +511,7 @@ mod tests {
             }
         }
         let v = Volume::new(v.grid.clone(), v.solid);
-        let (mut dist, mut ring) = (Vec::new(), Ring::default());
-        v.field(
-            &[(v.grid.index([3, 11, 2]) as u32, 0)],
-            &mut dist,
-            &mut ring,
-            None,
-        );
+        let dist = field_from(&v, [3, 11, 2]);
         let across = v.to_mesh(dist[v.grid.index([10, 11, 2])]);
         assert!(across > 14.0, "went around the wall: {across}");
     }
