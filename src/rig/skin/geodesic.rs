@@ -27,7 +27,8 @@ pub const UNREACHED: u32 = u32::MAX;
 /// The solid cells of the mesh and how they connect.
 pub struct Volume {
     pub grid: Grid,
-    pub solid: Vec<bool>,
+    /// Private: the walk indexes without bounds checks on the strength of it (see `new`).
+    solid: Vec<bool>,
     /// Indices of the solid cells.
     pub cells: Vec<u32>,
     /// 26-connected piece of solid each cell belongs to (u32::MAX outside).
@@ -244,6 +245,11 @@ impl Volume {
             }
             cur += 1;
         }
+    }
+
+    /// Whether each grid cell is solid.
+    pub fn solid(&self) -> &[bool] {
+        &self.solid
     }
 
     /// Converts a field value to mesh units.

@@ -328,7 +328,7 @@ pub fn candidates_timed(
             b: b.tail,
         })
         .collect();
-    let mut stamp = Stamp::new(volume.solid.len());
+    let mut stamp = Stamp::new(volume.solid().len());
     let on_bone: Vec<Vec<(u32, f32)>> = segs
         .iter()
         .map(|s| volume.cells_on(s, &mut stamp))
