@@ -10,7 +10,7 @@ use rigserve::export::bone_tree;
 use rigserve::infer::{Runtime, SessionConfig, SkinModel};
 use rigserve::mesh::{load, Limits, Mesh};
 use rigserve::rig::groundtruth::extract;
-use rigserve::rig::skin::{skin, skin_with, SkinConfig};
+use rigserve::rig::skin::{prepare, skin, skin_with, SkinConfig};
 use rigserve::rig::{Bone, Skeleton, SkinWeights};
 use serde_json::{json, Value};
 use std::collections::{HashMap, HashSet};
@@ -239,6 +239,72 @@ fn bad_skeletons_are_refused_with_codes() {
     let mut s = skel.clone();
     s.bones[2].head = Vec3::splat(30.0);
     assert!(skin(&mesh, &s, &cfg).is_ok());
+}
+
+#[test]
+fn meshes_that_cannot_be_skinned_are_refused_with_codes() {
+    let (mesh, skel) = two_legs();
+    let cfg = SkinConfig::default();
+    let code = |m: &Mesh| {
+        let whole = skin(m, &skel, &cfg).unwrap_err().code();
+        // Before any skeleton, too: a job prepares its mesh while the skeleton decodes.
+        let Err(early) = prepare(m, &cfg) else {
+            panic!("prepare accepted a mesh that skin refuses")
+        };
+        assert_eq!(early.code(), whole);
+        whole
+    };
+    let mut m = mesh.clone();
+    m.triangles.clear();
+    assert_eq!(code(&m), "skin_empty_mesh");
+    let mut m = mesh.clone();
+    m.positions[3].x = f32::INFINITY;
+    assert_eq!(code(&m), "skin_non_finite_mesh");
+    // Refused, not a panic in the welding that comes before the voxels.
+    let mut m = mesh.clone();
+    m.triangles[7][1] = mesh.positions.len() as u32;
+    assert_eq!(code(&m), "skin_bad_triangle");
+    let bad = SkinConfig {
+        resolution: 2,
+        ..SkinConfig::default()
+    };
+    assert_eq!(
+        skin(&mesh, &skel, &bad).unwrap_err().code(),
+        "skin_bad_config"
+    );
+    assert_eq!(
+        prepare(&mesh, &bad).err().unwrap().code(),
+        "skin_bad_config"
+    );
+}
+
+#[test]
+fn a_prepared_mesh_skins_as_the_whole_call_does() {
+    let cfg = SkinConfig::default();
+    let model = shipped_model();
+    for (mesh, skel) in [two_legs(), body_with_floating_hat()] {
+        let prepared = prepare(&mesh, &cfg).unwrap();
+        // One preparation serves any skeleton: the mesh's own, and one moved within it.
+        let mut moved = skel.clone();
+        moved.map_points(|p| p * 0.9 + Vec3::splat(0.02));
+        for s in [&skel, &moved] {
+            assert_eq!(
+                prepared.skin(s, &cfg, None).unwrap(),
+                skin(&mesh, s, &cfg).unwrap()
+            );
+            assert_eq!(
+                prepared.skin(s, &cfg, Some(&model)).unwrap(),
+                skin_with(&mesh, s, &cfg, Some(&model)).unwrap()
+            );
+        }
+        // And refuses what the whole call refuses of a skeleton.
+        let mut far = skel.clone();
+        far.map_points(|p| p * 100.0 + Vec3::splat(50.0));
+        assert_eq!(
+            prepared.skin(&far, &cfg, None).unwrap_err().code(),
+            "skeleton_outside_mesh"
+        );
+    }
 }
 
 fn rigserve(args: &[&str]) -> Output {

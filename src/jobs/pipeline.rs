@@ -12,8 +12,9 @@ use crate::mesh::{self, Limits};
 use crate::predict::library::Library;
 use crate::predict::{mesh_samples, predict_from_samples, PredictConfig, TemplateMode};
 use crate::rig::groundtruth;
-use crate::rig::skin::{skin_with, CandidateScorer, SkinConfig};
+use crate::rig::skin::{prepare, CandidateScorer, SkinConfig};
 use crate::rig::Skeleton;
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 
 /// What the workers share: the skeleton model's backend and the settings of each stage.
@@ -92,10 +93,73 @@ pub fn run(
     let given = options_skeleton(options)?;
     check(p)?;
 
+    // The mesh's side of skinning (welding, voxels, volume) needs no skeleton, so it can
+    // be built while this thread waits for the skeleton, mostly on the shared inference
+    // thread. Only on a free CPU slot, though: with every slot busy (a loaded server)
+    // another thread voxelizing beside them took jobs/min and poll latency (README, "The
+    // Zen 4 again"). If none frees up before the skeleton is done, it is built below,
+    // in the job's own slot, as before.
+    let skeleton_done = AtomicBool::new(false);
+    let (skeleton, early) = std::thread::scope(|s| {
+        let early = s.spawn(|| {
+            let _slot = engine
+                .cpu_slots
+                .acquire(|| skeleton_done.load(Ordering::Relaxed) || p.canceled())?;
+            Some(prepare(&asset.mesh, &engine.skin))
+        });
+        let skeleton = skeleton_for(engine, &asset, options, given, &progress);
+        skeleton_done.store(true, Ordering::Relaxed);
+        engine.cpu_slots.wake_waiters();
+        let early = early
+            .join()
+            .unwrap_or_else(|panic| std::panic::resume_unwind(panic));
+        (skeleton, early)
+    });
+    let skeleton = skeleton?;
+    check(p)?;
+
+    p.stage(Stage::Skinning);
+    let _slot = engine
+        .cpu_slots
+        .acquire(|| p.canceled())
+        .ok_or_else(|| StageError::new("canceled", "the job was canceled"))?;
+    let scorer = engine
+        .skin_model
+        .as_ref()
+        .map(|m| m as &dyn CandidateScorer);
+    let prepared = early.unwrap_or_else(|| prepare(&asset.mesh, &engine.skin));
+    let weights = prepared
+        .and_then(|m| m.skin(&skeleton, &engine.skin, scorer))
+        .map_err(|e| StageError::new(e.code(), e))?;
+    check(p)?;
+
+    p.stage(Stage::Exporting);
+    let export = ExportOptions {
+        animation: options.animation,
+        ..ExportOptions::default()
+    };
+    let glb = export_glb(&asset, &skeleton, &weights, &export)
+        .map_err(|e| StageError::new(e.code(), e))?;
+    Ok(Rigged {
+        glb,
+        bone_tree: bone_tree(&skeleton),
+        bones: skeleton.len(),
+    })
+}
+
+/// The job's skeleton: the one given or uploaded for `skin_only`, else the model's.
+fn skeleton_for(
+    engine: &Engine,
+    asset: &mesh::Asset,
+    options: &JobOptions,
+    given: Option<Skeleton>,
+    progress: &Arc<dyn Progress + Send + Sync>,
+) -> Result<Skeleton, StageError> {
+    let p = &**progress;
     let skeleton = if options.skin_only {
         match given {
             Some(s) => s,
-            None => groundtruth::extract(&asset)
+            None => groundtruth::extract(asset)
                 .map_err(|e| StageError::new(e.code(), e))?
                 .map(|gt| gt.skeleton)
                 .ok_or_else(|| {
@@ -122,33 +186,7 @@ pub fn run(
             .map_err(|e| StageError::new(e.code(), e))?
             .skeleton
     };
-    check(p)?;
-
-    p.stage(Stage::Skinning);
-    let _slot = engine
-        .cpu_slots
-        .acquire(|| p.canceled())
-        .ok_or_else(|| StageError::new("canceled", "the job was canceled"))?;
-    let scorer = engine
-        .skin_model
-        .as_ref()
-        .map(|m| m as &dyn CandidateScorer);
-    let weights = skin_with(&asset.mesh, &skeleton, &engine.skin, scorer)
-        .map_err(|e| StageError::new(e.code(), e))?;
-    check(p)?;
-
-    p.stage(Stage::Exporting);
-    let export = ExportOptions {
-        animation: options.animation,
-        ..ExportOptions::default()
-    };
-    let glb = export_glb(&asset, &skeleton, &weights, &export)
-        .map_err(|e| StageError::new(e.code(), e))?;
-    Ok(Rigged {
-        glb,
-        bone_tree: bone_tree(&skeleton),
-        bones: skeleton.len(),
-    })
+    Ok(skeleton)
 }
 
 fn predict_config(

@@ -43,6 +43,15 @@ impl CpuSlots {
         std::thread::available_parallelism().map_or(1, |n| n.get())
     }
 
+    /// Wakes every waiting [`CpuSlots::acquire`] to look at its `canceled` again (they
+    /// otherwise look when a slot is freed, or every 100 ms).
+    pub fn wake_waiters(&self) {
+        // Under the lock: a waiter is either before its look (and will see the change)
+        // or already waiting (and is woken), never in between.
+        let _free = self.free.lock().unwrap_or_else(|e| e.into_inner());
+        self.freed.notify_all();
+    }
+
     /// Blocks until a slot is free; `None` when `canceled` turns true first.
     pub fn acquire(&self, canceled: impl Fn() -> bool) -> Option<Slot<'_>> {
         let mut free = self.free.lock().unwrap_or_else(|e| e.into_inner());
@@ -96,5 +105,30 @@ mod tests {
         let slots = CpuSlots::new(1);
         let _held = slots.acquire(|| false).unwrap();
         assert!(slots.acquire(|| true).is_none());
+    }
+
+    #[test]
+    fn woken_waiters_give_up_or_wait_on_as_their_condition_says() {
+        use std::sync::atomic::AtomicBool;
+        let slots = CpuSlots::new(1);
+        let done = AtomicBool::new(false);
+        let held = slots.acquire(|| false).unwrap();
+        std::thread::scope(|s| {
+            // A job's early preparation: gives up once its skeleton is done.
+            let early = s.spawn(|| slots.acquire(|| done.load(Ordering::SeqCst)).is_some());
+            // A job waiting to skin: never gives up.
+            let skinning = s.spawn(|| slots.acquire(|| false).is_some());
+            std::thread::sleep(Duration::from_millis(20));
+            done.store(true, Ordering::SeqCst);
+            slots.wake_waiters();
+            assert!(
+                !early.join().unwrap(),
+                "the early wait gives up without a slot"
+            );
+            // The slot, freed now, goes to the one still waiting.
+            drop(held);
+            assert!(skinning.join().unwrap());
+        });
+        assert!(slots.acquire(|| false).is_some(), "the slot came back");
     }
 }

@@ -4,21 +4,22 @@
 //! the per-part rules of the module docs hold whichever method runs.
 
 use super::features::{features, SkinFeatures};
-use super::{
-    candidates_timed, ms, CandidateScorer, Candidates, SkinConfig, SkinError, SkinTimings,
-};
+use super::prepare::Voxels;
+use super::{candidates_in, ms, CandidateScorer, Candidates, SkinConfig, SkinError, SkinTimings};
 use crate::mesh::Mesh;
 use crate::rig::{Skeleton, SkinWeights};
 use std::time::Instant;
 
-/// [`super::skin_with`], also reporting where the time went.
-pub fn skin_learned_timed(
+/// [`super::skin_with`] of a checked, welded mesh and its `voxels`, also reporting where
+/// the time went.
+pub fn skin_learned_in(
     mesh: &Mesh,
+    voxels: &Voxels,
     skeleton: &Skeleton,
     cfg: &SkinConfig,
     model: &dyn CandidateScorer,
 ) -> Result<(SkinWeights, SkinTimings), SkinError> {
-    let (cands, mut times) = candidates_timed(mesh, skeleton, cfg, super::LEARNED_CANDIDATES)?;
+    let (cands, mut times) = candidates_in(mesh, voxels, skeleton, cfg, super::LEARNED_CANDIDATES)?;
     let t = Instant::now();
     let f = features(mesh, skeleton, &cands, cfg, super::LEARNED_CANDIDATES);
     let scores = if f.rows.is_empty() {

@@ -17,11 +17,15 @@
 //! [`candidates_timed`] gives each vertex its nearest allowed bones, [`features`] what the
 //! model reads, and [`skin_with`] lets the model choose among those bones when one is
 //! loaded (a [`CandidateScorer`]: `infer::SkinModel` runs `models/skin/`).
+//!
+//! Welding, step 1 and each vertex's stencil cells need only the mesh: [`prepare`] runs
+//! them before the skeleton is known, and [`Prepared::skin_timed`] does the rest.
 
 mod components;
 pub mod features;
 mod geodesic;
 mod learned;
+mod prepare;
 mod validate;
 mod voxel;
 mod weights;
@@ -31,12 +35,13 @@ use crate::mesh::Mesh;
 use crate::rig::metrics::Segment;
 use crate::rig::skeleton::SkeletonError;
 use crate::rig::{Skeleton, SkinWeights};
-use geodesic::{Nearest, Ring, Stamp, Stencils, Volume};
+use geodesic::{Nearest, Ring, Stamp, Stencils};
 use glam::Vec3;
 pub use learned::from_scores;
+use prepare::Voxels;
+pub use prepare::{prepare, Prepared};
 use serde::Serialize;
 use std::time::Instant;
-use voxel::{Grid, Region};
 pub use weld::Welded;
 
 /// Candidate bones per vertex the learned model chooses among: more than the four kept
@@ -193,12 +198,9 @@ pub fn skin_with_timed(
     cfg: &SkinConfig,
     model: Option<&dyn CandidateScorer>,
 ) -> Result<(SkinWeights, SkinTimings), SkinError> {
-    let welded = Welded::new(mesh);
-    let (w, times) = match model {
-        Some(m) => learned::skin_learned_timed(&welded.mesh, skeleton, cfg, m)?,
-        None => geometric_timed(&welded.mesh, skeleton, cfg)?,
-    };
-    Ok((welded.spread(&w), times))
+    // Checked here in full first, so a call refuses what it always did, in that order.
+    validate::check(mesh, skeleton, cfg)?;
+    prepare(mesh, cfg)?.skin_timed(skeleton, cfg, model)
 }
 
 /// How a part of the mesh chooses its bones.
@@ -220,15 +222,17 @@ pub fn skin_timed(
     skin_with_timed(mesh, skeleton, cfg, None)
 }
 
-/// Geometric weights of every vertex of `mesh` as it is (no welding).
-fn geometric_timed(
+/// Geometric weights of every vertex of `mesh` as it is (no welding), `voxels` being
+/// the mesh's.
+fn geometric_in(
     mesh: &Mesh,
+    voxels: &Voxels,
     skeleton: &Skeleton,
     cfg: &SkinConfig,
 ) -> Result<(SkinWeights, SkinTimings), SkinError> {
     // Two spare candidates beyond the kept influences: enough for the inverse-distance
     // blend, whose weights depend only on the nearest `max_influences`.
-    let (cands, mut times) = candidates_timed(mesh, skeleton, cfg, cfg.max_influences + 2)?;
+    let (cands, mut times) = candidates_in(mesh, voxels, skeleton, cfg, cfg.max_influences + 2)?;
     let t2 = Instant::now();
     let out = cands.geometric(cfg);
     times.weights_ms = ms(t2);
@@ -288,36 +292,33 @@ pub fn candidates_timed(
     k: usize,
 ) -> Result<(Candidates, SkinTimings), SkinError> {
     validate::check(mesh, skeleton, cfg)?;
+    candidates_in(mesh, &Voxels::new(mesh, cfg), skeleton, cfg, k)
+}
+
+/// [`candidates_timed`] with the mesh already checked and voxelized, `voxels` being the
+/// mesh's; the skeleton is checked by the caller.
+fn candidates_in(
+    mesh: &Mesh,
+    voxels: &Voxels,
+    skeleton: &Skeleton,
+    cfg: &SkinConfig,
+    k: usize,
+) -> Result<(Candidates, SkinTimings), SkinError> {
     let k = k.max(cfg.max_influences).max(1);
-    let mut times = SkinTimings::default();
-    let t0 = Instant::now();
     let pos = &mesh.positions;
-    let (lo, hi) = mesh.bounds();
-    let grid = Grid::around(lo, hi, cfg.resolution);
-    let whole = Region::whole(&grid);
-    let parts = components::components(pos, &mesh.triangles);
-    // Each triangle is rasterized once, for its part: every part covers its triangles'
-    // cells, so the parts' surfaces together are the whole mesh's surface.
-    let mut surface = vec![false; whole.len()];
-    let part_solids: Vec<(Region, Vec<bool>)> = parts
-        .triangles
-        .iter()
-        .map(|tris| {
-            let (plo, phi) = tris.iter().flat_map(|&t| mesh.triangles[t]).fold(
-                (Vec3::splat(f32::MAX), Vec3::splat(f32::MIN)),
-                |(a, b), i| (a.min(pos[i as usize]), b.max(pos[i as usize])),
-            );
-            let region = Region::around(&grid, plo, phi, 2);
-            let s = voxel::surface(pos, &mesh.triangles, tris.iter().copied(), &grid, &region);
-            voxel::merge_into(&mut surface, &grid, &region, &s);
-            let solid = voxel::fill(&s, &region);
-            (region, solid)
-        })
-        .collect();
-    let volume = Volume::new(grid, voxel::fill(&surface, &whole));
-    times.voxelize_ms = ms(t0);
-    times.solid_cells = volume.cells.len();
-    times.parts = parts.triangles.len();
+    let Voxels {
+        parts,
+        part_solids,
+        volume,
+        stencils,
+        ..
+    } = voxels;
+    let mut times = SkinTimings {
+        voxelize_ms: voxels.ms,
+        solid_cells: volume.cells.len(),
+        parts: parts.triangles.len(),
+        ..SkinTimings::default()
+    };
 
     let t1 = Instant::now();
     let segs: Vec<Segment> = skeleton
@@ -362,7 +363,7 @@ pub fn candidates_timed(
                 return Binding::Bones(through);
             }
             let first = mesh.triangles[parts.triangles[p][0]][0] as usize;
-            let blob = Stencils::new(&volume, &pos[first..=first])
+            let blob = Stencils::new(volume, &pos[first..=first])
                 .cells
                 .first()
                 .map(|&(c, _)| volume.blob[c as usize]);
@@ -378,7 +379,6 @@ pub fn candidates_timed(
         })
         .collect();
 
-    let stencils = Stencils::new(&volume, pos);
     let mut nearest: Vec<Vec<(u32, f32)>> = vec![Vec::new(); pos.len()];
     let (mut dist, mut ring) = (Vec::new(), Ring::default());
     // A bone's field need only cover where it is among the k nearest of the bones that
@@ -394,7 +394,7 @@ pub fn candidates_timed(
         })
         .collect();
     let mut pruning =
-        (everywhere.iter().filter(|&&e| e).count() >= k).then(|| Nearest::new(&volume, k));
+        (everywhere.iter().filter(|&&e| e).count() >= k).then(|| Nearest::new(volume, k));
     // Bones every vertex may take first: only they bound the others.
     let order = (0..segs.len())
         .filter(|&b| everywhere[b])
@@ -409,7 +409,7 @@ pub fn candidates_timed(
                 _ => false,
             };
             if allowed {
-                if let Some(d) = stencils.distance(&volume, v, &dist) {
+                if let Some(d) = stencils.distance(volume, v, &dist) {
                     insert_nearest(cands, (b as u32, d), k);
                 }
             }

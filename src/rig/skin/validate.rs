@@ -11,6 +11,13 @@ use crate::rig::Skeleton;
 pub fn check(mesh: &Mesh, skeleton: &Skeleton, cfg: &SkinConfig) -> Result<(), SkinError> {
     cfg.check()?;
     skeleton.validate(cfg.max_bones)?;
+    check_mesh(mesh, cfg)?;
+    check_skeleton(mesh, skeleton, cfg)
+}
+
+/// The settings and the mesh alone (what voxelizing needs of them).
+pub fn check_mesh(mesh: &Mesh, cfg: &SkinConfig) -> Result<(), SkinError> {
+    cfg.check()?;
     if mesh.positions.is_empty() || mesh.triangles.is_empty() {
         return Err(SkinError::EmptyMesh);
     }
@@ -25,6 +32,12 @@ pub fn check(mesh: &Mesh, skeleton: &Skeleton, cfg: &SkinConfig) -> Result<(), S
     {
         return Err(SkinError::BadTriangle(t));
     }
+    Ok(())
+}
+
+/// The skeleton, and that it sits on the (checked) mesh.
+pub fn check_skeleton(mesh: &Mesh, skeleton: &Skeleton, cfg: &SkinConfig) -> Result<(), SkinError> {
+    skeleton.validate(cfg.max_bones)?;
     let (lo, hi) = mesh.bounds();
     let margin = (hi - lo).max_element() * cfg.outside_margin;
     let (lo, hi) = (lo - margin, hi + margin);

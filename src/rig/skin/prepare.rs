@@ -1,0 +1,111 @@
+//! What skinning needs of the mesh alone: its parts and their voxels, the solid volume,
+//! and each vertex's stencil cells. None of it depends on the skeleton, so a job builds
+//! it while its skeleton is still being decoded ([`prepare`]): the worker would
+//! otherwise sit waiting on the inference thread, and under load that wait is where one
+//! of the two cores went idle (README, "The Zen 4 again").
+
+use super::components::{self, Components};
+use super::geodesic::{Stencils, Volume};
+use super::voxel::{self, Grid, Region};
+use super::{ms, validate, CandidateScorer, SkinConfig, SkinError, SkinTimings, Welded};
+use crate::mesh::Mesh;
+use crate::rig::{Skeleton, SkinWeights};
+use glam::Vec3;
+use std::time::Instant;
+
+/// The voxel side of one mesh, as [`super::candidates_timed`] reads it.
+pub struct Voxels {
+    pub(super) parts: Components,
+    /// Each part's own solid cells, in its region of the grid.
+    pub(super) part_solids: Vec<(Region, Vec<bool>)>,
+    /// The whole mesh's solid cells.
+    pub(super) volume: Volume,
+    /// Every vertex's stencil cells in `volume`.
+    pub(super) stencils: Stencils,
+    /// Time taken to build all of the above.
+    pub(super) ms: f64,
+}
+
+impl Voxels {
+    /// The mesh must have passed [`validate::check_mesh`] (finite positions, triangles
+    /// naming its vertices).
+    pub(super) fn new(mesh: &Mesh, cfg: &SkinConfig) -> Voxels {
+        let t0 = Instant::now();
+        let pos = &mesh.positions;
+        let (lo, hi) = mesh.bounds();
+        let grid = Grid::around(lo, hi, cfg.resolution);
+        let whole = Region::whole(&grid);
+        let parts = components::components(pos, &mesh.triangles);
+        // Each triangle is rasterized once, for its part: every part covers its triangles'
+        // cells, so the parts' surfaces together are the whole mesh's surface.
+        let mut surface = vec![false; whole.len()];
+        let part_solids: Vec<(Region, Vec<bool>)> = parts
+            .triangles
+            .iter()
+            .map(|tris| {
+                let (plo, phi) = tris.iter().flat_map(|&t| mesh.triangles[t]).fold(
+                    (Vec3::splat(f32::MAX), Vec3::splat(f32::MIN)),
+                    |(a, b), i| (a.min(pos[i as usize]), b.max(pos[i as usize])),
+                );
+                let region = Region::around(&grid, plo, phi, 2);
+                let s = voxel::surface(pos, &mesh.triangles, tris.iter().copied(), &grid, &region);
+                voxel::merge_into(&mut surface, &grid, &region, &s);
+                let solid = voxel::fill(&s, &region);
+                (region, solid)
+            })
+            .collect();
+        let volume = Volume::new(grid, voxel::fill(&surface, &whole));
+        let stencils = Stencils::new(&volume, pos);
+        Voxels {
+            parts,
+            part_solids,
+            volume,
+            stencils,
+            ms: ms(t0),
+        }
+    }
+}
+
+/// A mesh made ready for skinning by any skeleton: welded ([`Welded`]) and voxelized.
+pub struct Prepared {
+    welded: Welded,
+    voxels: Voxels,
+}
+
+/// Checks what can be checked of the mesh and the settings without a skeleton, then
+/// welds and voxelizes the mesh. [`Prepared::skin_timed`] finishes the job.
+pub fn prepare(mesh: &Mesh, cfg: &SkinConfig) -> Result<Prepared, SkinError> {
+    validate::check_mesh(mesh, cfg)?;
+    let welded = Welded::new(mesh);
+    let voxels = Voxels::new(&welded.mesh, cfg);
+    Ok(Prepared { welded, voxels })
+}
+
+impl Prepared {
+    /// [`super::skin_with_timed`] of the mesh this was prepared from, with the same
+    /// `cfg`: the same weights, without voxelizing again.
+    pub fn skin_timed(
+        &self,
+        skeleton: &Skeleton,
+        cfg: &SkinConfig,
+        model: Option<&dyn CandidateScorer>,
+    ) -> Result<(SkinWeights, SkinTimings), SkinError> {
+        let mesh = &self.welded.mesh;
+        validate::check_skeleton(mesh, skeleton, cfg)?;
+        let (w, times) = match model {
+            Some(m) => super::learned::skin_learned_in(mesh, &self.voxels, skeleton, cfg, m)?,
+            None => super::geometric_in(mesh, &self.voxels, skeleton, cfg)?,
+        };
+        Ok((self.welded.spread(&w), times))
+    }
+
+    /// [`Prepared::skin_timed`] without the timings.
+    pub fn skin(
+        &self,
+        skeleton: &Skeleton,
+        cfg: &SkinConfig,
+        model: Option<&dyn CandidateScorer>,
+    ) -> Result<SkinWeights, SkinError> {
+        self.skin_timed(skeleton, cfg, model).map(|(w, _)| w)
+    }
+}
