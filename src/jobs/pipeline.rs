@@ -95,16 +95,16 @@ pub fn run(
 
     // The mesh's side of skinning (welding, voxels, volume) needs no skeleton, so it can
     // be built while this thread waits for the skeleton, mostly on the shared inference
-    // thread. Only on a free CPU slot, though: with every slot busy (a loaded server)
-    // another thread voxelizing beside them took jobs/min and poll latency (README, "The
-    // Zen 4 again"). If none frees up before the skeleton is done, it is built below,
-    // in the job's own slot, as before.
+    // thread. Only on a spare CPU slot, though (one no job is waiting for): with every
+    // slot busy (a loaded server) another thread voxelizing beside them took jobs/min and
+    // poll latency (README, "The Zen 4 again"). If none is spare before the skeleton is
+    // done, it is built below, in the job's own slot, as before.
     let skeleton_done = AtomicBool::new(false);
     let (skeleton, early) = std::thread::scope(|s| {
         let early = s.spawn(|| {
             let _slot = engine
                 .cpu_slots
-                .acquire(|| skeleton_done.load(Ordering::Relaxed) || p.canceled())?;
+                .acquire_spare(|| skeleton_done.load(Ordering::Relaxed) || p.canceled())?;
             Some(prepare(&asset.mesh, &engine.skin))
         });
         let skeleton = skeleton_for(engine, &asset, options, given, &progress);

@@ -6,14 +6,21 @@
 //! add memory and switches, so `permits` of them run at once, by default one per core.
 //! The decoder does not need a core kept for it: it runs at a lower priority
 //! (`--decode-nice`), so under load its rows wait for each other and share steps, the
-//! cheaper way to decode (README, "Service load").
+//! cheaper way to decode (README, "Service load"). A job may also take a spare slot
+//! ([`CpuSlots::acquire_spare`]) to prepare its skinning while its skeleton decodes.
 
-use std::sync::{Condvar, Mutex};
+use std::sync::{Condvar, Mutex, MutexGuard};
 use std::time::Duration;
 
 pub struct CpuSlots {
-    free: Mutex<usize>,
+    state: Mutex<State>,
     freed: Condvar,
+}
+
+struct State {
+    free: usize,
+    /// Jobs blocked in [`CpuSlots::acquire`]: spare work leaves them the free slots.
+    waiting: usize,
 }
 
 /// Holds a slot until dropped.
@@ -21,8 +28,10 @@ pub struct Slot<'a>(&'a CpuSlots);
 
 impl Drop for Slot<'_> {
     fn drop(&mut self) {
-        *self.0.free.lock().unwrap_or_else(|e| e.into_inner()) += 1;
-        self.0.freed.notify_one();
+        self.0.state.lock().unwrap_or_else(|e| e.into_inner()).free += 1;
+        // All, not one: the one woken might be spare work that must leave the slot to a
+        // waiting job, and that job would then sleep on until its next look.
+        self.0.freed.notify_all();
     }
 }
 
@@ -33,7 +42,10 @@ impl CpuSlots {
     /// At least one permit.
     pub fn new(permits: usize) -> CpuSlots {
         CpuSlots {
-            free: Mutex::new(permits.max(1)),
+            state: Mutex::new(State {
+                free: permits.max(1),
+                waiting: 0,
+            }),
             freed: Condvar::new(),
         }
     }
@@ -48,27 +60,51 @@ impl CpuSlots {
     pub fn wake_waiters(&self) {
         // Under the lock: a waiter is either before its look (and will see the change)
         // or already waiting (and is woken), never in between.
-        let _free = self.free.lock().unwrap_or_else(|e| e.into_inner());
+        let _state = self.state.lock().unwrap_or_else(|e| e.into_inner());
         self.freed.notify_all();
     }
 
     /// Blocks until a slot is free; `None` when `canceled` turns true first.
     pub fn acquire(&self, canceled: impl Fn() -> bool) -> Option<Slot<'_>> {
-        let mut free = self.free.lock().unwrap_or_else(|e| e.into_inner());
-        loop {
+        let mut state = self.state.lock().unwrap_or_else(|e| e.into_inner());
+        state.waiting += 1;
+        let slot = loop {
             if canceled() {
+                break None;
+            }
+            if state.free > 0 {
+                state.free -= 1;
+                break Some(Slot(self));
+            }
+            state = self.wait(state);
+        };
+        state.waiting -= 1;
+        slot
+    }
+
+    /// For work that only uses a core nobody needs (a job preparing ahead while its
+    /// skeleton decodes): blocks until more slots are free than jobs wait in
+    /// [`CpuSlots::acquire`], so it never delays one; `None` when `give_up` turns true
+    /// first.
+    pub fn acquire_spare(&self, give_up: impl Fn() -> bool) -> Option<Slot<'_>> {
+        let mut state = self.state.lock().unwrap_or_else(|e| e.into_inner());
+        loop {
+            if give_up() {
                 return None;
             }
-            if *free > 0 {
-                *free -= 1;
+            if state.free > state.waiting {
+                state.free -= 1;
                 return Some(Slot(self));
             }
-            free = self
-                .freed
-                .wait_timeout(free, CANCEL_CHECK)
-                .unwrap_or_else(|e| e.into_inner())
-                .0;
+            state = self.wait(state);
         }
+    }
+
+    fn wait<'a>(&self, state: MutexGuard<'a, State>) -> MutexGuard<'a, State> {
+        self.freed
+            .wait_timeout(state, CANCEL_CHECK)
+            .unwrap_or_else(|e| e.into_inner())
+            .0
     }
 }
 
@@ -105,6 +141,46 @@ mod tests {
         let slots = CpuSlots::new(1);
         let _held = slots.acquire(|| false).unwrap();
         assert!(slots.acquire(|| true).is_none());
+    }
+
+    #[test]
+    fn spare_work_leaves_free_slots_to_waiting_jobs() {
+        let slots = CpuSlots::new(2);
+        // One job blocked in `acquire`, as it counts itself.
+        slots.state.lock().unwrap().waiting = 1;
+        let looks = AtomicUsize::new(0);
+        // Gives up at its second look, so a refusal shows as None instead of a hang.
+        let give_up = || looks.fetch_add(1, Ordering::SeqCst) > 0;
+        let spare = slots.acquire_spare(give_up);
+        assert!(spare.is_some(), "two free, one job waiting: one is spare");
+        looks.store(0, Ordering::SeqCst);
+        assert!(
+            slots.acquire_spare(give_up).is_none(),
+            "one free, one job waiting: the slot is the job's"
+        );
+        slots.state.lock().unwrap().waiting = 0;
+        looks.store(0, Ordering::SeqCst);
+        assert!(
+            slots.acquire_spare(give_up).is_some(),
+            "nobody waits any more"
+        );
+    }
+
+    #[test]
+    fn a_freed_slot_reaches_the_waiting_job_then_spare_work() {
+        let slots = CpuSlots::new(1);
+        let held = slots.acquire(|| false).unwrap();
+        std::thread::scope(|s| {
+            let job = s.spawn(|| slots.acquire(|| false).is_some());
+            while slots.state.lock().unwrap().waiting == 0 {
+                std::thread::yield_now();
+            }
+            let spare = s.spawn(|| slots.acquire_spare(|| false).is_some());
+            drop(held);
+            assert!(job.join().unwrap());
+            // The job's slot came back (its closure dropped it): now it is spare.
+            assert!(spare.join().unwrap());
+        });
     }
 
     #[test]
