@@ -107,9 +107,12 @@ pub fn run(
                 .acquire_spare(|| skeleton_done.load(Ordering::Relaxed) || p.canceled())?;
             Some(prepare(&asset.mesh, &engine.skin))
         });
-        let skeleton = skeleton_for(engine, &asset, options, given, &progress);
-        skeleton_done.store(true, Ordering::Relaxed);
-        engine.cpu_slots.wake_waiters();
+        let skeleton = {
+            // Dropped however this ends, a panic included: the scope joins the other
+            // thread before it unwinds, so that thread must stop waiting then too.
+            let _done = Done(&skeleton_done, &engine.cpu_slots);
+            skeleton_for(engine, &asset, options, given, &progress)
+        };
         let early = early
             .join()
             .unwrap_or_else(|panic| std::panic::resume_unwind(panic));
@@ -145,6 +148,17 @@ pub fn run(
         bone_tree: bone_tree(&skeleton),
         bones: skeleton.len(),
     })
+}
+
+/// Marks a job's skeleton done and wakes its early preparation if that still waits for a
+/// slot (see `run`).
+struct Done<'a>(&'a AtomicBool, &'a CpuSlots);
+
+impl Drop for Done<'_> {
+    fn drop(&mut self) {
+        self.0.store(true, Ordering::Relaxed);
+        self.1.wake_waiters();
+    }
 }
 
 /// The job's skeleton: the one given or uploaded for `skin_only`, else the model's.
