@@ -200,7 +200,7 @@ pub fn skin_with_timed(
 ) -> Result<(SkinWeights, SkinTimings), SkinError> {
     // Checked here in full first, so a call refuses what it always did, in that order.
     validate::check(mesh, skeleton, cfg)?;
-    prepare(mesh, cfg)?.skin_timed(skeleton, cfg, model)
+    Prepared::checked(mesh, cfg).skin_checked(skeleton, cfg, model)
 }
 
 /// How a part of the mesh chooses its bones.

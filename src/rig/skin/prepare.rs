@@ -76,12 +76,17 @@ pub struct Prepared {
 /// welds and voxelizes the mesh. [`Prepared::skin_timed`] finishes the job.
 pub fn prepare(mesh: &Mesh, cfg: &SkinConfig) -> Result<Prepared, SkinError> {
     validate::check_mesh(mesh, cfg)?;
-    let welded = Welded::new(mesh);
-    let voxels = Voxels::new(&welded.mesh, cfg);
-    Ok(Prepared { welded, voxels })
+    Ok(Prepared::checked(mesh, cfg))
 }
 
 impl Prepared {
+    /// [`prepare`] of a mesh and settings the caller has checked.
+    pub(super) fn checked(mesh: &Mesh, cfg: &SkinConfig) -> Prepared {
+        let welded = Welded::new(mesh);
+        let voxels = Voxels::new(&welded.mesh, cfg);
+        Prepared { welded, voxels }
+    }
+
     /// [`super::skin_with_timed`] of the mesh this was prepared from, with the same
     /// `cfg`: the same weights, without voxelizing again.
     pub fn skin_timed(
@@ -90,8 +95,18 @@ impl Prepared {
         cfg: &SkinConfig,
         model: Option<&dyn CandidateScorer>,
     ) -> Result<(SkinWeights, SkinTimings), SkinError> {
+        validate::check_skeleton(&self.welded.mesh, skeleton, cfg)?;
+        self.skin_checked(skeleton, cfg, model)
+    }
+
+    /// [`Prepared::skin_timed`] of a skeleton the caller has checked.
+    pub(super) fn skin_checked(
+        &self,
+        skeleton: &Skeleton,
+        cfg: &SkinConfig,
+        model: Option<&dyn CandidateScorer>,
+    ) -> Result<(SkinWeights, SkinTimings), SkinError> {
         let mesh = &self.welded.mesh;
-        validate::check_skeleton(mesh, skeleton, cfg)?;
         let (w, times) = match model {
             Some(m) => super::learned::skin_learned_in(mesh, &self.voxels, skeleton, cfg, m)?,
             None => super::geometric_in(mesh, &self.voxels, skeleton, cfg)?,

@@ -11,13 +11,23 @@ use crate::rig::Skeleton;
 pub fn check(mesh: &Mesh, skeleton: &Skeleton, cfg: &SkinConfig) -> Result<(), SkinError> {
     cfg.check()?;
     skeleton.validate(cfg.max_bones)?;
-    check_mesh(mesh, cfg)?;
-    check_skeleton(mesh, skeleton, cfg)
+    mesh_alone(mesh)?;
+    sits_on(mesh, skeleton, cfg)
 }
 
 /// The settings and the mesh alone (what voxelizing needs of them).
 pub fn check_mesh(mesh: &Mesh, cfg: &SkinConfig) -> Result<(), SkinError> {
     cfg.check()?;
+    mesh_alone(mesh)
+}
+
+/// The skeleton, and that it sits on the (checked) mesh.
+pub fn check_skeleton(mesh: &Mesh, skeleton: &Skeleton, cfg: &SkinConfig) -> Result<(), SkinError> {
+    skeleton.validate(cfg.max_bones)?;
+    sits_on(mesh, skeleton, cfg)
+}
+
+fn mesh_alone(mesh: &Mesh) -> Result<(), SkinError> {
     if mesh.positions.is_empty() || mesh.triangles.is_empty() {
         return Err(SkinError::EmptyMesh);
     }
@@ -35,9 +45,7 @@ pub fn check_mesh(mesh: &Mesh, cfg: &SkinConfig) -> Result<(), SkinError> {
     Ok(())
 }
 
-/// The skeleton, and that it sits on the (checked) mesh.
-pub fn check_skeleton(mesh: &Mesh, skeleton: &Skeleton, cfg: &SkinConfig) -> Result<(), SkinError> {
-    skeleton.validate(cfg.max_bones)?;
+fn sits_on(mesh: &Mesh, skeleton: &Skeleton, cfg: &SkinConfig) -> Result<(), SkinError> {
     let (lo, hi) = mesh.bounds();
     let margin = (hi - lo).max_element() * cfg.outside_margin;
     let (lo, hi) = (lo - margin, hi + margin);
