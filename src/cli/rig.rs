@@ -105,7 +105,7 @@ pub struct DecodeArgs {
     #[arg(long, default_value_t = 128)]
     pub max_bones: usize,
     /// Sampling temperature; 0 decodes greedily (one candidate).
-    #[arg(long, default_value_t = 0.8)]
+    #[arg(long, default_value_t = rigserve::predict::DEFAULT_TEMPERATURE)]
     pub temperature: f32,
     /// Keep only the k most likely tokens at each step (0: all).
     #[arg(long, default_value_t = 0)]
