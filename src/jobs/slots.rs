@@ -55,8 +55,9 @@ impl CpuSlots {
         std::thread::available_parallelism().map_or(1, |n| n.get())
     }
 
-    /// Wakes every waiting [`CpuSlots::acquire`] to look at its `canceled` again (they
-    /// otherwise look when a slot is freed, or every 100 ms).
+    /// Wakes every waiting [`CpuSlots::acquire`] and [`CpuSlots::acquire_spare`] to look
+    /// at its `canceled` or `give_up` again (they otherwise look when a slot is freed, or
+    /// every 100 ms).
     pub fn wake_waiters(&self) {
         // Under the lock: a waiter is either before its look (and will see the change)
         // or already waiting (and is woken), never in between.
