@@ -345,6 +345,48 @@ fn batched_equals_alone() {
     }
 }
 
+/// Two inference threads: each job's candidates go together to the thread with fewer rows
+/// outstanding, and give the tokens they give on one thread.
+#[test]
+fn two_lanes_split_the_rows_and_match_one() {
+    let Some(rt) = runtime() else { return };
+    let one = backend(&rt, true);
+    let two = Backend::with_lanes(
+        vec![load(&rt, &fixture()), load(&rt, &fixture())],
+        BackendConfig::default(),
+    )
+    .unwrap();
+    let points: Vec<Arc<[[f32; 6]]>> = (0..3).map(|k| random_points(30 + k, 2048)).collect();
+    // Three jobs: four candidates, two, and one.
+    let jobs: Vec<Vec<SkeletonRequest>> = [4usize, 2, 1]
+        .iter()
+        .enumerate()
+        .map(|(j, &n)| {
+            (0..n as u64)
+                .map(|k| request(&points[j], vec![BOS, CLS_BASE + 1], 500 + 10 * j as u64 + k))
+                .collect()
+        })
+        .collect();
+    let alone: Vec<Vec<Generation>> = jobs
+        .iter()
+        .map(|reqs| reqs.iter().map(|r| one.generate(r.clone()).unwrap()).collect())
+        .collect();
+    let mut held = Vec::new();
+    let mut loads = Vec::new();
+    for reqs in &jobs {
+        held.push(two.submit_many(reqs.clone()).unwrap());
+        loads.push(two.lane_loads());
+    }
+    // 4 to the first lane, 2 to the second, then 1 to the second (2 < 4).
+    assert_eq!(loads, vec![vec![4, 0], vec![4, 2], vec![4, 3]]);
+    for (j, (pending, want)) in held.into_iter().zip(&alone).enumerate() {
+        let got: Vec<Generation> = pending.into_iter().map(|p| p.wait().unwrap()).collect();
+        assert_eq!(&got, want, "job {j} differs on two lanes");
+    }
+    assert_eq!(two.lane_loads(), vec![0, 0]);
+    assert_eq!(two.metrics().completed, 7);
+}
+
 #[test]
 fn deterministic_for_a_seed() {
     let Some(rt) = runtime() else { return };

@@ -51,6 +51,12 @@ pub struct ServeArgs {
     #[arg(long, env = "RIGSERVE_DECODE_NICE", default_value_t = 19,
           value_parser = clap::value_parser!(i32).range(-20..=19))]
     pub decode_nice: i32,
+    /// Inference threads, each decoding its own batch of skeleton candidates (default: 2,
+    /// or 1 on a single core). The second uses the core that idles while every running
+    /// job waits for its skeleton, at the price of smaller batches.
+    #[arg(long, env = "RIGSERVE_DECODE_LANES",
+          value_parser = clap::builder::RangedU64ValueParser::<usize>::new().range(1..=8))]
+    pub decode_lanes: Option<usize>,
     #[command(flatten)]
     pub limits: LimitArgs,
     /// Largest upload for the synchronous `POST /v1/rig`, in bytes.
@@ -142,6 +148,7 @@ pub fn run(a: ServeArgs) -> anyhow::Result<()> {
         max_batch: a.max_batch,
         ragged: !a.model.dense_decode,
         decode_nice: a.decode_nice,
+        decode_lanes: a.decode_lanes.unwrap_or_else(ModelSetup::default_decode_lanes),
         library: a.model.library_path(),
     });
     cfg.limits = a.limits.limits();

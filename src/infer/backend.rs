@@ -26,7 +26,7 @@ use super::InferError;
 use crate::rig::grammar::Grammar;
 use ndarray::{Array2, Array3, ArrayView1, Axis};
 use std::collections::VecDeque;
-use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU64, AtomicUsize, Ordering};
 use std::sync::mpsc::{channel, Receiver, RecvError, Sender};
 use std::sync::{Arc, Mutex};
 use std::time::Instant;
@@ -249,6 +249,8 @@ impl MetricsSnapshot {
 pub struct Pending {
     rx: Receiver<Result<Generation, InferError>>,
     cancel: Arc<AtomicBool>,
+    /// The load count of the lane it went to.
+    load: Option<Arc<AtomicUsize>>,
 }
 
 impl Pending {
@@ -278,6 +280,9 @@ impl Pending {
 impl Drop for Pending {
     fn drop(&mut self) {
         self.cancel.store(true, Ordering::Relaxed);
+        if let Some(load) = &self.load {
+            load.fetch_sub(1, Ordering::Relaxed);
+        }
     }
 }
 
@@ -299,11 +304,11 @@ enum Command {
     Submit(Vec<Job>),
 }
 
-/// Handle to the inference thread. `Send + Sync`: share it (e.g. in an `Arc`) between
-/// request handlers. Dropping it stops the thread after failing whatever is still queued.
+/// Handle to the inference thread (or threads: see [`Backend::with_lanes`]). `Send +
+/// Sync`: share it (e.g. in an `Arc`) between request handlers. Dropping it stops the
+/// threads after failing whatever is still queued.
 pub struct Backend {
-    tx: Option<Sender<Command>>,
-    thread: Option<std::thread::JoinHandle<()>>,
+    lanes: Vec<Lane>,
     /// The model's encoder session, run by the submitting threads under a lock rather than
     /// by the inference thread, so encoding one job overlaps the decode steps of the others:
     /// under load the inference thread is the bottleneck, and the encoder took a fifth of it.
@@ -322,12 +327,21 @@ impl std::fmt::Debug for Backend {
     }
 }
 
-impl Backend {
-    /// Moves `model` onto a new inference thread.
-    pub fn new(mut model: SkeletonModel, config: BackendConfig) -> Result<Backend, InferError> {
-        let info = model.info().clone();
-        let metrics = Arc::new(Metrics::default());
-        let encoder = Mutex::new(model.take_encoder()?);
+/// One inference thread: its own sessions, batch and cache.
+struct Lane {
+    tx: Option<Sender<Command>>,
+    thread: Option<std::thread::JoinHandle<()>>,
+    /// Rows submitted to this lane whose [`Pending`] is still held.
+    load: Arc<AtomicUsize>,
+}
+
+impl Lane {
+    fn start(
+        index: usize,
+        model: SkeletonModel,
+        config: &BackendConfig,
+        metrics: &Arc<Metrics>,
+    ) -> Result<Lane, InferError> {
         let (tx, rx) = channel();
         let worker = Worker {
             cache: DecodeCache::for_model(&model, config.ragged),
@@ -338,10 +352,15 @@ impl Backend {
             waiting: VecDeque::new(),
             running: Vec::new(),
             metrics: metrics.clone(),
+            shown: (0, 0),
         };
         let nice = config.nice;
+        let name = match index {
+            0 => "rigserve-infer".to_string(),
+            i => format!("rigserve-infer-{i}"),
+        };
         let thread = std::thread::Builder::new()
-            .name("rigserve-infer".into())
+            .name(name)
             .spawn(move || {
                 if nice != 0 {
                     if let Err(e) = super::priority::set_thread_nice(nice) {
@@ -353,9 +372,54 @@ impl Backend {
             .map_err(|e| {
                 InferError::Environment(format!("cannot start the inference thread: {e}"))
             })?;
-        Ok(Backend {
+        Ok(Lane {
             tx: Some(tx),
             thread: Some(thread),
+            load: Arc::default(),
+        })
+    }
+}
+
+impl Backend {
+    /// Moves `model` onto a new inference thread.
+    pub fn new(model: SkeletonModel, config: BackendConfig) -> Result<Backend, InferError> {
+        Backend::with_lanes(vec![model], config)
+    }
+
+    /// One inference thread per model (the same model loaded once per thread; the first
+    /// one's encoder serves them all). Each request goes to the lane with the fewest rows
+    /// outstanding, so one lane takes everything until it holds more than the others.
+    ///
+    /// Why more than one: at a high nice value (a server's default) the decode runs in the
+    /// gaps the jobs' own work leaves, and under load there are moments when every job
+    /// waits for its skeleton and one core decodes while the other idles. A second lane
+    /// decodes on that core; the price is smaller batches (each step's weights read by
+    /// two threads), README "An Intel Xeon".
+    pub fn with_lanes(
+        mut models: Vec<SkeletonModel>,
+        config: BackendConfig,
+    ) -> Result<Backend, InferError> {
+        let first = models
+            .first_mut()
+            .ok_or_else(|| InferError::Environment("no model for the inference thread".into()))?;
+        let info = first.info().clone();
+        let encoder = Mutex::new(first.take_encoder()?);
+        let metrics = Arc::new(Metrics::default());
+        let mut lanes = Vec::with_capacity(models.len());
+        for (i, mut model) in models.into_iter().enumerate() {
+            if i > 0 {
+                if model.info() != &info {
+                    return Err(InferError::Environment(
+                        "the inference threads' models differ".into(),
+                    ));
+                }
+                // Only the first lane's encoder runs.
+                drop(model.take_encoder()?);
+            }
+            lanes.push(Lane::start(i, model, &config, &metrics)?);
+        }
+        Ok(Backend {
+            lanes,
             encoder,
             info,
             config,
@@ -373,6 +437,15 @@ impl Backend {
 
     pub fn metrics(&self) -> MetricsSnapshot {
         self.metrics.snapshot()
+    }
+
+    /// Rows outstanding per inference thread: submitted, and their [`Pending`] not yet
+    /// dropped.
+    pub fn lane_loads(&self) -> Vec<usize> {
+        self.lanes
+            .iter()
+            .map(|l| l.load.load(Ordering::Relaxed))
+            .collect()
     }
 
     /// Queues one request. Invalid requests are refused here, before they reach the queue.
@@ -398,9 +471,18 @@ impl Backend {
         }
         self.encode_here(&mut jobs)?;
         let n = jobs.len() as u64;
-        let tx = self.tx.as_ref().ok_or(InferError::BackendGone)?;
+        let lane = self
+            .lanes
+            .iter()
+            .min_by_key(|l| l.load.load(Ordering::Relaxed))
+            .expect("a backend has a lane");
+        let tx = lane.tx.as_ref().ok_or(InferError::BackendGone)?;
         tx.send(Command::Submit(jobs))
             .map_err(|_| InferError::BackendGone)?;
+        lane.load.fetch_add(pending.len(), Ordering::Relaxed);
+        for p in &mut pending {
+            p.load = Some(lane.load.clone());
+        }
         Metrics::add(&self.metrics.requests, n);
         Ok(pending)
     }
@@ -512,7 +594,11 @@ impl Backend {
                 cancel: cancel.clone(),
                 prefix: None,
             },
-            Pending { rx, cancel },
+            Pending {
+                rx,
+                cancel,
+                load: None,
+            },
         ))
     }
 
@@ -522,9 +608,14 @@ impl Backend {
     }
 
     fn stop(&mut self) {
-        self.tx.take();
-        if let Some(t) = self.thread.take() {
-            let _ = t.join();
+        // Every channel first, so the lanes wind down together.
+        for lane in &mut self.lanes {
+            lane.tx.take();
+        }
+        for lane in &mut self.lanes {
+            if let Some(t) = lane.thread.take() {
+                let _ = t.join();
+            }
         }
     }
 }
@@ -589,6 +680,8 @@ struct Worker {
     /// Rows in `running` order; empty without a KV cache or when nothing runs.
     cache: DecodeCache,
     metrics: Arc<Metrics>,
+    /// This lane's share of the `running` and `waiting` gauges, which add up the lanes.
+    shown: (u64, u64),
 }
 
 impl Worker {
@@ -637,13 +730,15 @@ impl Worker {
         self.gauges();
     }
 
-    fn gauges(&self) {
-        self.metrics
-            .running
-            .store(self.running.len() as u64, Ordering::Relaxed);
-        self.metrics
-            .waiting
-            .store(self.waiting.len() as u64, Ordering::Relaxed);
+    fn gauges(&mut self) {
+        let now = (self.running.len() as u64, self.waiting.len() as u64);
+        // Wrapping adds of the change: the gauges are the sums over the lanes.
+        let m = &self.metrics;
+        m.running
+            .fetch_add(now.0.wrapping_sub(self.shown.0), Ordering::Relaxed);
+        m.waiting
+            .fetch_add(now.1.wrapping_sub(self.shown.1), Ordering::Relaxed);
+        self.shown = now;
     }
 
     /// Prefills as many waiting jobs as the batch has room for, together, and lets them

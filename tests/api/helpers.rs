@@ -29,6 +29,7 @@ pub fn model_setup() -> ModelSetup {
         max_batch: 16,
         ragged: true,
         decode_nice: 0,
+        decode_lanes: ModelSetup::default_decode_lanes(),
         library: None,
     }
 }

@@ -645,7 +645,14 @@ fn base64_decode(s: &str) -> Vec<u8> {
 
 #[tokio::test]
 async fn concurrent_jobs_share_decode_batches() {
-    let app = spawn_app(|c| c.workers = 4).await;
+    // One inference thread, so all six jobs meet in its batch (with two, each gets half).
+    let app = spawn_app(|c| {
+        c.workers = 4;
+        if let Some(m) = c.model.as_mut() {
+            m.decode_lanes = 1;
+        }
+    })
+    .await;
     let mut ids = Vec::new();
     for seed in 0..6 {
         let j: Value = app.submit_figure(&format!("?seed={seed}")).await;
