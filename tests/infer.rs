@@ -369,7 +369,11 @@ fn two_lanes_split_the_rows_and_match_one() {
         .collect();
     let alone: Vec<Vec<Generation>> = jobs
         .iter()
-        .map(|reqs| reqs.iter().map(|r| one.generate(r.clone()).unwrap()).collect())
+        .map(|reqs| {
+            reqs.iter()
+                .map(|r| one.generate(r.clone()).unwrap())
+                .collect()
+        })
         .collect();
     let mut held = Vec::new();
     let mut loads = Vec::new();

@@ -148,7 +148,9 @@ pub fn run(a: ServeArgs) -> anyhow::Result<()> {
         max_batch: a.max_batch,
         ragged: !a.model.dense_decode,
         decode_nice: a.decode_nice,
-        decode_lanes: a.decode_lanes.unwrap_or_else(ModelSetup::default_decode_lanes),
+        decode_lanes: a
+            .decode_lanes
+            .unwrap_or_else(ModelSetup::default_decode_lanes),
         library: a.model.library_path(),
     });
     cfg.limits = a.limits.limits();
