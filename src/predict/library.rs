@@ -20,8 +20,10 @@ pub const SHAPE_POINTS: usize = 512;
 /// Widths of the Gaussians (box coordinates, each axis in [-1, 1]) over which surface
 /// displacements are averaged, coarse to fine. Chosen leave-one-out on the `train` split
 /// of ../shared/rigs (CD-J2J 0.0757 without a warp, 0.0702 with one scale of 0.12,
-/// 0.0675 with these three).
-const WARP_SCALES: [f32; 3] = [0.5, 0.3, 0.2];
+/// 0.0675 with 0.5, 0.3, 0.2; with the later proportion term and joints pulled inside,
+/// 0.0617 with those three and 0.0611–0.0612 with any of four coarser starts tried,
+/// `rigserve eval --retrieval --split train`; MODEL_CARD.md, "Warp widths").
+const WARP_SCALES: [f32; 4] = [0.6, 0.4, 0.3, 0.2];
 /// Weight of the mean |log ratio| of the boxes' proportions in the shape distance: box
 /// coordinates hide whether a mesh is tall or long. Chosen leave-one-out on `train`
 /// (CD-J2J 0.0675 at 0, 0.0642 at 0.05, 0.0626 at 0.2, 0.0638 at 0.5).
