@@ -89,10 +89,15 @@ impl Volume {
     /// to the segment in mesh units.
     pub fn cells_on(&self, seg: &Segment, stamp: &mut Stamp) -> Vec<(u32, f32)> {
         let g = &self.grid;
-        let len = seg.a.distance(seg.b);
-        let steps = (len / (g.cell * 0.5)).ceil().max(1.0) as usize;
         stamp.next();
         let mut out = Vec::new();
+        // Only the part near the grid is walked, so the steps are bounded by the grid's
+        // size whatever the bone's length (a file's joint transform can put a joint 1e30
+        // units away, and the step count would then exceed any integer: a hang).
+        let Some((seg, steps)) = walk(g, seg) else {
+            return out;
+        };
+        let seg = &seg;
         for s in 0..=steps {
             let p = seg.a.lerp(seg.b, s as f32 / steps as f32);
             let c = g.cell_of(p);
@@ -343,6 +348,52 @@ impl Nearest {
     }
 }
 
+/// The part of `seg` that [`Volume::cells_on`] walks, and in how many steps (two per
+/// cell).
+fn walk(g: &Grid, seg: &Segment) -> Option<(Segment, usize)> {
+    let seg = clip_to_grid(g, seg)?;
+    let len = seg.a.distance(seg.b);
+    // The clipped part lies in the grown box, so its length is finite and at most the
+    // box's diagonal; the cap only guards against rounding.
+    let cap = 2 * (g.dims.iter().sum::<usize>() + 6);
+    let steps = ((len / (g.cell * 0.5)).ceil().max(1.0) as usize).min(cap);
+    Some((seg, steps))
+}
+
+/// The part of `seg` within the grid's box grown by one cell (a step's 3×3×3
+/// neighbourhood reaches that far out), or `None` when the segment misses it or is not
+/// finite. A segment wholly inside is returned as it is, to the bit. Every cell within
+/// [`ON_BONE`] cells of the segment has its nearest point on the part kept, so the cells
+/// found and their distances are those of the whole segment, as far as `f32` can place a
+/// segment far longer than the grid (one of 1e30 units cannot be placed to a cell).
+fn clip_to_grid(g: &Grid, seg: &Segment) -> Option<Segment> {
+    let d = seg.b - seg.a;
+    if !(seg.a.is_finite() && seg.b.is_finite() && d.is_finite()) {
+        return None;
+    }
+    let lo = g.origin - Vec3::splat(g.cell);
+    let hi = g.origin + Vec3::from(g.dims.map(|n| n as f32)) * g.cell + Vec3::splat(g.cell);
+    let (mut t0, mut t1) = (0.0f32, 1.0f32);
+    for k in 0..3 {
+        if d[k] == 0.0 {
+            if seg.a[k] < lo[k] || seg.a[k] > hi[k] {
+                return None;
+            }
+            continue;
+        }
+        let (u, v) = ((lo[k] - seg.a[k]) / d[k], (hi[k] - seg.a[k]) / d[k]);
+        t0 = t0.max(u.min(v));
+        t1 = t1.min(u.max(v));
+    }
+    if t0 > t1 {
+        return None;
+    }
+    Some(Segment {
+        a: if t0 > 0.0 { seg.a + d * t0 } else { seg.a },
+        b: if t1 < 1.0 { seg.a + d * t1 } else { seg.b },
+    })
+}
+
 /// Marks cells visited during one walk without clearing a whole array each time.
 pub struct Stamp {
     marks: Vec<u32>,
@@ -484,6 +535,55 @@ mod tests {
         assert_eq!(dist[v.grid.index([5, 5, 2])], 42);
         assert_eq!(dist[v.grid.index([5, 5, 5])], 51);
         assert_eq!(dist[v.grid.index([0, 0, 0])], 0, "outside the solid");
+    }
+
+    #[test]
+    fn a_bone_far_longer_than_the_grid_is_walked_only_where_it_crosses() {
+        let v = slab([12, 12, 12]);
+        let y = Vec3::new(0.0, 6.5, 6.5);
+        let cells = |a: Vec3, b: Vec3| {
+            let mut stamp = Stamp::new(v.solid.len());
+            let mut c = v.cells_on(&Segment { a, b }, &mut stamp);
+            c.sort_by_key(|&(i, _)| i);
+            c
+        };
+        // 10^4 units each way: the same cells as the bone clipped by hand.
+        let long = cells(y + Vec3::X * -1e4, y + Vec3::X * 1e4);
+        let inside = cells(y + Vec3::X * -1.0, y + Vec3::X * 13.0);
+        assert_eq!(long.len(), inside.len());
+        assert!(!long.is_empty());
+        for ((i, d), (j, e)) in long.iter().zip(&inside) {
+            assert_eq!(i, j);
+            assert!((d - e).abs() < 1e-2, "{d} {e}");
+        }
+        // A joint 1e30 units away (a hostile transform): the steps once overflowed to
+        // usize::MAX, a hang; now they are bounded by the grid.
+        let huge = Segment {
+            a: y + Vec3::X * -1e30,
+            b: y + Vec3::X * 1e30,
+        };
+        let (_, steps) = walk(&v.grid, &huge).expect("crosses the grid");
+        assert!(steps <= 2 * (36 + 6), "{steps} steps");
+        cells(huge.a, huge.b);
+        assert!(
+            cells(y + Vec3::Y * 1e30, y + Vec3::Y * 2e30).is_empty(),
+            "misses"
+        );
+        assert!(cells(Vec3::splat(f32::NAN), y).is_empty(), "not finite");
+        let inner = (y + Vec3::X * 3.0, y + Vec3::X * 5.0);
+        let clipped = clip_to_grid(
+            &v.grid,
+            &Segment {
+                a: inner.0,
+                b: inner.1,
+            },
+        )
+        .unwrap();
+        assert_eq!(
+            (clipped.a, clipped.b),
+            inner,
+            "inside: unchanged to the bit"
+        );
     }
 
     #[test]
