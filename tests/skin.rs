@@ -112,6 +112,31 @@ fn two_legs() -> (Mesh, Skeleton) {
     (mesh, skel)
 }
 
+/// A bone reaching 1e30 units out (a hostile joint transform, or a user's skeleton for
+/// `skin_only`) once hung skinning: its half-cell step count overflowed. Run on a thread
+/// so that a regression fails here instead of hanging the suite.
+#[test]
+fn a_bone_reaching_absurdly_far_still_skins() {
+    let (mesh, mut skel) = two_legs();
+    let hips = skel.bones[0].head;
+    skel.bones.push(Bone::new(
+        "target",
+        Some(0),
+        hips,
+        hips + Vec3::new(1e30, 0.0, 0.0),
+    ));
+    let n = mesh.positions.len();
+    let (tx, rx) = std::sync::mpsc::channel();
+    std::thread::spawn(move || {
+        let _ = tx.send(skin(&mesh, &skel, &SkinConfig::default()));
+    });
+    let w = rx
+        .recv_timeout(std::time::Duration::from_secs(60))
+        .expect("skinning returns")
+        .unwrap();
+    assert_well_formed(&w, n, 4);
+}
+
 /// A column body with a head, and a hat floating above the head (its own closed part).
 fn body_with_floating_hat() -> (Mesh, Skeleton) {
     let mut mesh = Mesh::default();
