@@ -89,15 +89,14 @@ impl Volume {
     /// to the segment in mesh units.
     pub fn cells_on(&self, seg: &Segment, stamp: &mut Stamp) -> Vec<(u32, f32)> {
         let g = &self.grid;
-        stamp.next();
-        let mut out = Vec::new();
         // Only the part near the grid is walked, so the steps are bounded by the grid's
         // size whatever the bone's length (a file's joint transform can put a joint 1e30
         // units away, and the step count would then exceed any integer: a hang).
         let Some((seg, steps)) = walk(g, seg) else {
-            return out;
+            return Vec::new();
         };
-        let seg = &seg;
+        stamp.next();
+        let mut out = Vec::new();
         for s in 0..=steps {
             let p = seg.a.lerp(seg.b, s as f32 / steps as f32);
             let c = g.cell_of(p);
