@@ -225,6 +225,7 @@ pub fn parse_document(
     // Deserialised from a borrow: a clone of the tree would double the peak memory
     // of a JSON-heavy upload.
     let root = Root::deserialize(&json).map_err(|e| MeshError::Invalid(e.to_string()))?;
+    check_shape(&json, root.buffers.len())?;
     if !root.asset.version.starts_with("2.") {
         return Err(MeshError::UnsupportedVersion(root.asset.version.clone()));
     }
@@ -287,6 +288,53 @@ pub fn parse_document(
         root,
         buffers,
     })
+}
+
+/// glTF's top-level arrays that hold objects, each of which an export copies.
+const OBJECT_ARRAYS: [&str; 13] = [
+    "accessors",
+    "animations",
+    "buffers",
+    "bufferViews",
+    "cameras",
+    "images",
+    "materials",
+    "meshes",
+    "nodes",
+    "samplers",
+    "scenes",
+    "skins",
+    "textures",
+];
+
+/// What the schema requires and serde's defaults would paper over: `[]` reads as an
+/// empty object, a bufferView without `buffer` as one on buffer 0. An entry nothing
+/// refers to passes the loader either way, but the export copies every entry of the
+/// document, so such a file used to fail its job after inference instead of at upload.
+fn check_shape(json: &Value, buffers: usize) -> Result<(), MeshError> {
+    for key in OBJECT_ARRAYS {
+        let Some(v) = json.get(key) else { continue };
+        let a = v
+            .as_array()
+            .ok_or_else(|| MeshError::Invalid(format!("{key} is not an array")))?;
+        if let Some(i) = a.iter().position(|e| !e.is_object()) {
+            return Err(MeshError::Invalid(format!("{key}[{i}] is not an object")));
+        }
+    }
+    let views = json.get("bufferViews").and_then(Value::as_array);
+    for (i, v) in views.into_iter().flatten().enumerate() {
+        let b = v
+            .get("buffer")
+            .and_then(Value::as_u64)
+            .ok_or_else(|| MeshError::Invalid(format!("bufferView {i} has no buffer")))?;
+        if b >= buffers as u64 {
+            return Err(MeshError::IndexOutOfRange {
+                what: "buffer",
+                index: b,
+            });
+        }
+    }
+    Ok(())
 }
 
 /// Decodes a base64 `data:` URI. The decoded size is checked from the text length
