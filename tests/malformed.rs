@@ -559,11 +559,10 @@ fn try_one(label: String, bytes: &[u8], limits: &Limits, t: &mut Tally) {
 }
 
 /// A mutant the loader accepts must also come out as a GLB that rigserve reads back with
-/// the same vertices: otherwise a job would fail after inference, at export, for a file
-/// accepted at upload (unused bufferViews without a buffer did, until the loader checked
-/// them). `None` when it does; the failure otherwise. Extracting the rig back is not
-/// asserted: a few mutants (8 of 3,474 loaded at `RIGSERVE_FUZZ_SCALE=20`) export a skin
-/// whose inverse bind matrices read back as singular, not yet explained.
+/// the same vertices and this skeleton: otherwise a job would fail after inference, at
+/// export, for a file accepted at upload (unused bufferViews without a buffer did, until
+/// the loader checked them), or rigserve could not read its own output (a skin whose
+/// bind frame was flat in its affine part did). `None` when it does; the failure otherwise.
 fn export_round_trip(asset: &rigserve::mesh::Asset) -> Option<String> {
     use rigserve::export::{export_glb, ExportOptions};
     use rigserve::rig::{Bone, Skeleton, SkinWeights};
@@ -601,7 +600,14 @@ fn export_round_trip(asset: &rigserve::mesh::Asset) -> Option<String> {
             back.mesh.positions.len()
         ));
     }
-    None
+    match extract(&back) {
+        Ok(Some(gt)) if gt.skeleton.len() == 2 => None,
+        Ok(other) => Some(format!(
+            "extract: {:?} bones",
+            other.map(|g| g.skeleton.len())
+        )),
+        Err(e) => Some(format!("extract: {e}")),
+    }
 }
 
 #[test]

@@ -190,14 +190,4 @@ impl Builder {
     }
 }
 
-/// The affine part of a matrix: stored positions are points, and a projective last row
-/// (exporters leave 0.99999994 in it) makes inverse bind matrices invalid glTF
-/// (ACCESSOR_INVALID_IBM).
-pub(crate) fn affine(m: Mat4) -> Mat4 {
-    let mut c = m.to_cols_array();
-    c[3] = 0.0;
-    c[7] = 0.0;
-    c[11] = 0.0;
-    c[15] = 1.0;
-    Mat4::from_cols_array(&c)
-}
+pub(crate) use crate::mesh::scene::affine;

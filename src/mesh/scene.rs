@@ -338,11 +338,38 @@ fn skin_to_world(
         last = Some((j, root));
     }
     let root = is_root.iter().position(|&r| r);
-    let m = root.and_then(|k| world[joints[k]].map(|w| w * ibms[k]));
+    // Vertices are placed as points, so only the affine part counts: a bind matrix whose
+    // last row is garbage can have a sizeable 4×4 determinant around a flat 3×3 part,
+    // which would flatten the mesh and hand the export inverse bind matrices that no
+    // reader, rigserve included, can invert.
+    let m = root.and_then(|k| world[joints[k]].map(|w| affine(w * ibms[k])));
     Ok(match m {
-        Some(m) if m.is_finite() && m.determinant().abs() > 1e-20 => m,
+        Some(m) if m.is_finite() && invertible(m) => m,
         _ => Mat4::IDENTITY,
     })
+}
+
+/// Whether the linear part of `m` is safely invertible: not vanishingly small (the
+/// determinant's size, as before), and not flat: the determinant against the product of
+/// the columns' lengths is 1 for a rotation with any scale and 0 for a projection, so
+/// round-off in a flat matrix cannot pass for a small scale.
+fn invertible(m: Mat4) -> bool {
+    let l = glam::Mat3::from_mat4(m).as_dmat3();
+    let lengths = l.x_axis.length() * l.y_axis.length() * l.z_axis.length();
+    let det = l.determinant();
+    det.abs() > 1e-20 && (det / lengths).abs() > 1e-6
+}
+
+/// The affine part of a matrix: stored positions are points, and a projective last row
+/// (exporters leave 0.99999994 in it) makes inverse bind matrices invalid glTF
+/// (ACCESSOR_INVALID_IBM).
+pub fn affine(m: Mat4) -> Mat4 {
+    let mut c = m.to_cols_array();
+    c[3] = 0.0;
+    c[7] = 0.0;
+    c[11] = 0.0;
+    c[15] = 1.0;
+    Mat4::from_cols_array(&c)
 }
 
 type Range = (u32, u32);
