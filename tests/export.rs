@@ -781,6 +781,41 @@ fn joints_join_every_scene_that_needs_them_and_mixed_frames_are_refused() {
 }
 
 #[test]
+fn a_part_flattened_by_its_node_still_reads_back() {
+    // A zero scale flattens (or hides) a node's mesh. Its skin's inverse bind matrices are
+    // then singular, which says nothing of where the joints rest; the other parts' skins
+    // over the same joints do, so the rig must still read back, here and for
+    // `--skeleton-from-input`. (It used to fail with "singular inverse bind matrix".)
+    let (syn, _, skel, _) = glb_case();
+    let bytes = edit_glb(&syn.bytes, |j| {
+        let nodes = j["nodes"].as_array_mut().unwrap();
+        let n = nodes.iter_mut().find(|n| n.get("mesh").is_some()).unwrap();
+        n.as_object_mut().unwrap().remove("matrix");
+        n["scale"] = json!([1.0, 1.0, 0.0]);
+    });
+    let input = load(&bytes, &Limits::default()).unwrap();
+    let weights = distance_weights(&skel, &input.mesh.positions, 1.0);
+    let glb = export_glb(&input, &skel, &weights, &ExportOptions::default()).unwrap();
+    let back = load(&glb, &Limits::default()).unwrap();
+    let skins = back.document.as_ref().unwrap().root.skins.len();
+    assert!(
+        skins >= 2,
+        "the flattened part needs a skin of its own: {skins}"
+    );
+    let gt = extract(&back).unwrap().expect("a rig");
+    assert_eq!(gt.skeleton.len(), skel.len());
+    for (a, b) in gt.skeleton.bones.iter().zip(&skel.bones) {
+        assert!(
+            a.head.distance(b.head) < 1e-4,
+            "{}: {} vs {}",
+            a.name,
+            a.head,
+            b.head
+        );
+    }
+}
+
+#[test]
 fn export_refuses_inconsistent_rigs_with_codes() {
     let input = load(cylinder_obj(3, 6, 1.0).as_bytes(), &Limits::default()).unwrap();
     let n = input.mesh.positions.len();

@@ -39,6 +39,7 @@ pub fn extract(asset: &Asset) -> Result<Option<GroundTruth>, MeshError> {
     // Joint node -> bind-pose world matrix, first skin wins when skins share joints.
     let mut bind: HashMap<usize, Mat4> = HashMap::new();
     let mut order: Vec<usize> = Vec::new();
+    let mut singular: Vec<(usize, usize, usize)> = Vec::new();
     for &s in &used_skins {
         let skin = &doc.root.skins[s];
         let ibms = inverse_bind_matrices(doc, s)?;
@@ -61,13 +62,20 @@ pub fn extract(asset: &Asset) -> Result<Option<GroundTruth>, MeshError> {
             }
             let ibm = ibms[k];
             if ibm.determinant().abs() < 1e-20 {
-                return Err(MeshError::Invalid(format!(
-                    "skin {s}: joint {k} has a singular inverse bind matrix"
-                )));
+                // A skin binding a part its node flattens (a zero scale) has singular
+                // matrices that say nothing of where the joints rest; another skin over
+                // the same joints (rigserve writes one per frame) may say it.
+                singular.push((s, k, j));
+                continue;
             }
             bind.insert(j, to_world * ibm.inverse());
             order.push(j);
         }
+    }
+    if let Some(&(s, k, _)) = singular.iter().find(|(_, _, j)| !bind.contains_key(j)) {
+        return Err(MeshError::Invalid(format!(
+            "skin {s}: joint {k} has a singular inverse bind matrix"
+        )));
     }
     let mut node_parent = vec![None; nodes.len()];
     for (i, n) in nodes.iter().enumerate() {
