@@ -646,6 +646,8 @@ def build():
         "a vertex coordinate that is not a number")
     add("obj_degenerate.obj", b"v 0 0 0\nv 1 1 1\nv 2 2 2\nf 1 2 3\n", "degenerate_mesh",
         "one triangle with collinear corners")
+    add("obj_sliver_1e38.obj", BASE_OBJ.replace(b"v 0.5 2 0.5", b"v 0.5 2 1e38"), "degenerate_mesh",
+        "one corner 1e38 out: areas overflow f32 in the file's frame and vanish in the unit frame")
     add("obj_too_many_vertices.obj",
         b"".join(b"v %d 0 %d\n" % (i % 10, i // 10) for i in range(100)) + b"f 1 2 11\n",
         "too_many_vertices", "100 vertices over a cap of 64", limits="small")

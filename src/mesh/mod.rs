@@ -149,14 +149,20 @@ fn validate_geometry(mesh: &Mesh) -> Result<(), MeshError> {
     if mesh.positions.iter().any(|p| !p.is_finite()) {
         return Err(MeshError::NonFinite);
     }
+    // Measured in the unit frame, in f32, as the samplers will measure it: relative to
+    // the mesh's size, so tiny-but-real models (millimetre units) still pass, and a
+    // corner 1e38 out (areas that overflow to infinity in the file's frame and vanish in
+    // the unit frame) is refused here rather than failing its job at sampling.
+    let norm = Normalization::from_points(&mesh.positions);
     let area: f64 = mesh
         .triangles
         .iter()
-        .map(|t| triangle_area(mesh, t) as f64)
+        .map(|t| {
+            let [a, b, c] = t.map(|i| norm.apply(mesh.positions[i as usize]));
+            ((b - a).cross(c - a).length() * 0.5) as f64
+        })
         .sum();
-    let scale = Normalization::from_points(&mesh.positions).half_extent as f64;
-    // Relative to the mesh's size so tiny-but-real models (millimetre units) still pass.
-    if !(area > 1e-12 * scale * scale) {
+    if !(area > 1e-12) {
         return Err(MeshError::Degenerate);
     }
     Ok(())
