@@ -157,10 +157,7 @@ fn validate_geometry(mesh: &Mesh) -> Result<(), MeshError> {
     let area: f64 = mesh
         .triangles
         .iter()
-        .map(|t| {
-            let [a, b, c] = t.map(|i| norm.apply(mesh.positions[i as usize]));
-            ((b - a).cross(c - a).length() * 0.5) as f64
-        })
+        .map(|t| corners_area(t.map(|i| norm.apply(mesh.positions[i as usize]))) as f64)
         .sum();
     if !(area > 1e-12) {
         return Err(MeshError::Degenerate);
@@ -169,7 +166,10 @@ fn validate_geometry(mesh: &Mesh) -> Result<(), MeshError> {
 }
 
 pub(crate) fn triangle_area(mesh: &Mesh, t: &[u32; 3]) -> f32 {
-    let [a, b, c] = t.map(|i| mesh.positions[i as usize]);
+    corners_area(t.map(|i| mesh.positions[i as usize]))
+}
+
+fn corners_area([a, b, c]: [Vec3; 3]) -> f32 {
     (b - a).cross(c - a).length() * 0.5
 }
 
