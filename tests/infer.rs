@@ -845,6 +845,29 @@ fn predicts_a_skeleton_in_the_mesh_frame() {
         .position(|&t| t == EOS)
         .unwrap();
     assert!(prompt_len >= 2 + 9);
+
+    // Bones to keep in other units, or with one joint at 1e30, are refused, not clamped
+    // onto the unit cube for the prompt and put back where they were afterwards.
+    for (label, f) in [
+        (
+            "in centimetres",
+            (|_, p| p * 100.0) as fn(usize, Vec3) -> Vec3,
+        ),
+        ("one joint at 1e30", |i, p| {
+            if i == 2 {
+                Vec3::splat(1e30)
+            } else {
+                p
+            }
+        }),
+    ] {
+        let mut far = keep_chain();
+        for (i, b) in far.bones.iter_mut().enumerate() {
+            b.head = f(i, b.head);
+        }
+        let err = predict_skeleton(&b, &asset.mesh, &cfg, Some(&far)).unwrap_err();
+        assert_eq!(err.code(), "keep_bones_outside_mesh", "{label}: {err}");
+    }
 }
 
 #[test]

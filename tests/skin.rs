@@ -113,28 +113,42 @@ fn two_legs() -> (Mesh, Skeleton) {
 }
 
 /// A bone reaching 1e30 units out (a hostile joint transform, or a user's skeleton for
-/// `skin_only`) once hung skinning: its half-cell step count overflowed. Run on a thread
-/// so that a regression fails here instead of hanging the suite.
+/// `skin_only`) once hung skinning: its half-cell step count overflowed. The walk is
+/// clipped to the grid since (`geodesic`'s own test); such a bone is now refused first
+/// (`rig::placement`), while one fifty mesh sizes out, as odd as any artist's helper
+/// bone could be, still skins. On a thread, so that a regression fails here instead of
+/// hanging the suite.
 #[test]
-fn a_bone_reaching_absurdly_far_still_skins() {
-    let (mesh, mut skel) = two_legs();
+fn a_bone_reaching_absurdly_far_is_refused_and_a_long_one_skins() {
+    let (mesh, skel) = two_legs();
     let hips = skel.bones[0].head;
-    skel.bones.push(Bone::new(
-        "target",
-        Some(0),
-        hips,
-        hips + Vec3::new(1e30, 0.0, 0.0),
-    ));
     let n = mesh.positions.len();
+    let size = {
+        let (lo, hi) = mesh.bounds();
+        (hi - lo).max_element()
+    };
     let (tx, rx) = std::sync::mpsc::channel();
     std::thread::spawn(move || {
-        let _ = tx.send(skin(&mesh, &skel, &SkinConfig::default()));
+        for reach in [1e30, 50.0 * size] {
+            let mut s = skel.clone();
+            s.bones.push(Bone::new(
+                "target",
+                Some(0),
+                hips,
+                hips + Vec3::new(reach, 0.0, 0.0),
+            ));
+            let _ = tx.send(skin(&mesh, &s, &SkinConfig::default()));
+        }
     });
-    let w = rx
+    let far = rx
+        .recv_timeout(std::time::Duration::from_secs(60))
+        .expect("skinning returns");
+    assert_eq!(far.unwrap_err().code(), "skeleton_outside_mesh");
+    let long = rx
         .recv_timeout(std::time::Duration::from_secs(60))
         .expect("skinning returns")
         .unwrap();
-    assert_well_formed(&w, n, 4);
+    assert_well_formed(&long, n, 4);
 }
 
 /// A column body with a head, and a hat floating above the head (its own closed part).

@@ -9,8 +9,9 @@ use crate::jobs::webhook::check_url;
 use crate::jobs::{
     new_job_id, Admission, BlobKind, Idempotency, Job, JobOptions, JobStatus, JobView, NewJob,
 };
-use crate::rig::groundtruth;
+use crate::mesh::Mesh;
 use crate::rig::tokenizer::CATEGORIES;
+use crate::rig::{groundtruth, placement, Skeleton};
 use axum::body::Body;
 use axum::extract::{Path, Request, State};
 use axum::http::{header, HeaderMap, HeaderValue, StatusCode};
@@ -38,7 +39,8 @@ pub async fn view(state: &AppState, job: &Job) -> Result<JobView, ApiError> {
     Ok(JobView::new(job, pos))
 }
 
-fn check_options(state: &AppState, o: &JobOptions) -> Result<(), ApiError> {
+/// Checks the options on their own; returns the `skeleton` option parsed.
+fn check_options(state: &AppState, o: &JobOptions) -> Result<Option<Skeleton>, ApiError> {
     let bad = |m: String| ApiError::unprocessable("invalid_options", m);
     if let Some(c) = &o.category {
         if !CATEGORIES.contains(&c.as_str()) {
@@ -63,12 +65,16 @@ fn check_options(state: &AppState, o: &JobOptions) -> Result<(), ApiError> {
     if let Some(url) = &o.webhook_url {
         check_url(url).map_err(|e| ApiError::unprocessable(e.code(), e.to_string()))?;
     }
-    if let Some(tree) = &o.skeleton {
-        let skel = parse_bone_tree(tree)
-            .map_err(|e| ApiError::unprocessable(e.code(), format!("skeleton: {e}")))?;
-        skel.validate(o.max_bones)
-            .map_err(|e| ApiError::unprocessable(e.code(), format!("skeleton: {e}")))?;
-    }
+    let skeleton = match &o.skeleton {
+        Some(tree) => {
+            let skel = parse_bone_tree(tree)
+                .map_err(|e| ApiError::unprocessable(e.code(), format!("skeleton: {e}")))?;
+            skel.validate(o.max_bones)
+                .map_err(|e| ApiError::unprocessable(e.code(), format!("skeleton: {e}")))?;
+            Some(skel)
+        }
+        None => None,
+    };
     if !o.skin_only && !state.cfg.skeleton_model {
         return Err(ApiError::new(
             StatusCode::SERVICE_UNAVAILABLE,
@@ -76,7 +82,22 @@ fn check_options(state: &AppState, o: &JobOptions) -> Result<(), ApiError> {
             "this server has no skeleton model loaded; only skin_only jobs are accepted",
         ));
     }
-    Ok(())
+    Ok(skeleton)
+}
+
+/// The `skeleton` option against the mesh it came with, by the rule the job would apply
+/// later (skinning a given skeleton, or continuing bones to keep): a tree in other units
+/// is the client's error now, not a failed job after its turn in the queue.
+fn check_placement(skel: &Skeleton, mesh: &Mesh, skin_only: bool) -> Result<(), ApiError> {
+    let (lo, hi) = mesh.bounds();
+    placement::check(skel, lo, hi, placement::OUTSIDE_MARGIN).map_err(|e| {
+        let code = if skin_only {
+            "skeleton_outside_mesh"
+        } else {
+            "keep_bones_outside_mesh"
+        };
+        ApiError::unprocessable(code, format!("skeleton: {e}"))
+    })
 }
 
 fn payload_hash(bytes: &[u8], options: &JobOptions) -> String {
@@ -111,18 +132,22 @@ pub async fn submit(
     let declared = upload::declared_format(up.content_type.as_deref())?;
     upload::check_magic(declared, &up.bytes)?;
     let options = upload::options(query.as_deref(), up.options)?;
-    check_options(state, &options)?;
+    let given = check_options(state, &options)?;
 
     // Parse before accepting: a file the loader refuses is the client's error now, not
     // a failed job later.
     let limits = state.cfg.limits;
     let bytes = up.bytes.clone();
     let needs_own_skeleton = options.skin_only && options.skeleton.is_none();
+    let skin_only = options.skin_only;
     let format = tokio::task::spawn_blocking(move || {
         let asset = crate::mesh::load(&bytes, &limits)?;
+        if let Some(skel) = &given {
+            check_placement(skel, &asset.mesh, skin_only)?;
+        }
         if needs_own_skeleton {
             match groundtruth::extract(&asset) {
-                Ok(Some(_)) => {}
+                Ok(Some(gt)) => check_placement(&gt.skeleton, &asset.mesh, true)?,
                 Ok(None) => {
                     return Err(ApiError::unprocessable(
                         "no_skeleton",

@@ -13,6 +13,7 @@ mod winding;
 
 use crate::infer::{Backend, InferError, SamplingParams, SkeletonRequest};
 use crate::mesh::{sample_surface, Mesh, Normalization};
+use crate::rig::placement;
 use crate::rig::template::match_mixamo;
 use crate::rig::tokenizer::{
     class_token, detokenize, tokenize_with_order, TokenizeError, BOS, EOS, MIXAMO_BODY,
@@ -112,6 +113,8 @@ pub enum PredictError {
     KeepTokenize(#[from] TokenizeError),
     #[error("{0} bones to keep, more than the cap of {1}")]
     KeepTooMany(usize, usize),
+    #[error("bones to keep: {0}")]
+    KeepOutside(#[from] crate::rig::placement::Misplaced),
     #[error("no candidate gave a skeleton: {0}")]
     NoCandidate(String),
 }
@@ -123,6 +126,7 @@ impl PredictError {
             PredictError::EmptySurface => "mesh_no_surface",
             PredictError::KeepTokenize(_) => "keep_bones_invalid",
             PredictError::KeepTooMany(..) => "keep_bones_too_many",
+            PredictError::KeepOutside(_) => "keep_bones_outside_mesh",
             PredictError::NoCandidate(_) => "no_candidate",
         }
     }
@@ -177,16 +181,22 @@ pub struct KeepPrompt {
     pub bones: Skeleton,
 }
 
-/// Prompt for continuing `keep` (mesh frame). `category` overrides the keep file's own.
+/// Prompt for continuing `keep` (mesh frame) on the mesh whose unit-frame bounding box is
+/// `bounds`. `category` overrides the keep file's own.
 pub fn keep_prompt(
     keep: &Skeleton,
     norm: &Normalization,
+    bounds: (Vec3, Vec3),
     category: Option<&str>,
     max_bones: usize,
 ) -> Result<KeepPrompt, PredictError> {
     if keep.len() > max_bones {
         return Err(PredictError::KeepTooMany(keep.len(), max_bones));
     }
+    // Bones the tokenizer would clamp onto the unit cube's faces, and put back afterwards
+    // where they were: checked in the mesh's frame, where a far joint's distance is finite.
+    let (lo, hi) = (norm.invert(bounds.0), norm.invert(bounds.1));
+    placement::check(keep, lo, hi, placement::OUTSIDE_MARGIN)?;
     let mut matched = match_mixamo(keep).unwrap_or_else(|| keep.clone());
     if let Some(c) = category {
         matched.category = Some(c.to_string());
@@ -258,7 +268,15 @@ pub fn predict_from_samples(
 ) -> Result<Prediction, PredictError> {
     let norm = samples.normalization;
     let kept = keep
-        .map(|k| keep_prompt(k, &norm, cfg.category.as_deref(), cfg.max_bones))
+        .map(|k| {
+            keep_prompt(
+                k,
+                &norm,
+                samples.bounds,
+                cfg.category.as_deref(),
+                cfg.max_bones,
+            )
+        })
         .transpose()?;
     let prompt = match &kept {
         Some(k) => k.tokens.clone(),

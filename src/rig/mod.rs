@@ -3,6 +3,7 @@ pub mod grammar;
 pub mod groundtruth;
 pub mod metrics;
 pub mod nearest;
+pub mod placement;
 pub mod skeleton;
 pub mod skin;
 pub mod template;

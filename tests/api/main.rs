@@ -269,6 +269,32 @@ async fn bad_requests_get_typed_errors() {
         .post_mesh(figure_obj(), "model/obj", "?skin_only=true")
         .await;
     assert_error(r, 422, "no_skeleton").await;
+    // A tree in other units (centimetres on a mesh in metres), or with one joint at 1e30,
+    // is refused at upload by the rule the job would apply after queueing: skinning it,
+    // or continuing from it as bones to keep.
+    let moved = |f: &dyn Fn(usize, f64) -> f64| {
+        let mut tree = figure_skeleton();
+        for (i, b) in tree["bones"].as_array_mut().unwrap().iter_mut().enumerate() {
+            for key in ["head", "tail"] {
+                for c in b[key].as_array_mut().unwrap() {
+                    *c = f(i, c.as_f64().unwrap()).into();
+                }
+            }
+        }
+        urlencode(&tree.to_string())
+    };
+    let centimetres = moved(&|_, x| x * 100.0);
+    let one_far = moved(&|i, x| if i == 3 { 1e30 } else { x });
+    for (tree, skin_only, code) in [
+        (&centimetres, true, "skeleton_outside_mesh"),
+        (&one_far, true, "skeleton_outside_mesh"),
+        (&centimetres, false, "keep_bones_outside_mesh"),
+        (&one_far, false, "keep_bones_outside_mesh"),
+    ] {
+        let q = format!("?skin_only={skin_only}&skeleton={tree}");
+        let r = app.post_mesh(figure_obj(), "model/obj", &q).await;
+        assert_error(r, 422, code).await;
+    }
     assert_error(app.get("/v1/jobs/nope").await, 404, "job_not_found").await;
     assert_error(app.get("/v1/nothing").await, 404, "not_found").await;
     let r = app.client.put(app.url("/v1/jobs")).send().await.unwrap();

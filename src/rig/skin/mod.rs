@@ -84,7 +84,7 @@ impl Default for SkinConfig {
             softness: 0.5,
             min_weight: 0.05,
             max_bones: crate::mesh::scene::MAX_JOINTS as usize,
-            outside_margin: 0.25,
+            outside_margin: crate::rig::placement::OUTSIDE_MARGIN,
         }
     }
 }
@@ -115,8 +115,8 @@ pub enum SkinError {
     /// or a parent index out of order), `skeleton_non_finite`, `skeleton_duplicate_name`.
     #[error("the skeleton is invalid: {0}")]
     Skeleton(#[from] SkeletonError),
-    #[error("{outside} of {bones} joints lie far outside the mesh's bounding box; is the skeleton in the mesh's frame and units?")]
-    OutsideMesh { outside: usize, bones: usize },
+    #[error(transparent)]
+    OutsideMesh(#[from] crate::rig::placement::Misplaced),
     #[error("the mesh has no triangles to skin")]
     EmptyMesh,
     #[error("the mesh has a NaN or infinite vertex position")]
@@ -135,7 +135,7 @@ impl SkinError {
     pub fn code(&self) -> &'static str {
         match self {
             SkinError::Skeleton(e) => e.code(),
-            SkinError::OutsideMesh { .. } => "skeleton_outside_mesh",
+            SkinError::OutsideMesh(_) => "skeleton_outside_mesh",
             SkinError::EmptyMesh => "skin_empty_mesh",
             SkinError::NonFiniteMesh => "skin_non_finite_mesh",
             SkinError::BadTriangle(_) => "skin_bad_triangle",

@@ -47,18 +47,10 @@ fn mesh_alone(mesh: &Mesh) -> Result<(), SkinError> {
 
 fn sits_on(mesh: &Mesh, skeleton: &Skeleton, cfg: &SkinConfig) -> Result<(), SkinError> {
     let (lo, hi) = mesh.bounds();
-    let margin = (hi - lo).max_element() * cfg.outside_margin;
-    let (lo, hi) = (lo - margin, hi + margin);
-    let outside = skeleton
-        .bones
-        .iter()
-        .filter(|b| b.head.cmplt(lo).any() || b.head.cmpgt(hi).any())
-        .count();
-    if outside * 2 > skeleton.len() {
-        return Err(SkinError::OutsideMesh {
-            outside,
-            bones: skeleton.len(),
-        });
-    }
-    Ok(())
+    Ok(crate::rig::placement::check(
+        skeleton,
+        lo,
+        hi,
+        cfg.outside_margin,
+    )?)
 }
