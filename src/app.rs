@@ -102,6 +102,8 @@ pub struct Config {
     pub webhook_secret: Option<String>,
     pub webhook_attempts: u32,
     pub webhook_first_delay: Duration,
+    /// Let webhooks go to loopback and private addresses (off: only public ones).
+    pub webhook_allow_private: bool,
 }
 
 impl Config {
@@ -135,6 +137,7 @@ impl Config {
             webhook_secret: None,
             webhook_attempts: 6,
             webhook_first_delay: Duration::from_secs(1),
+            webhook_allow_private: false,
         }
     }
 }
@@ -278,6 +281,7 @@ impl Application {
             cfg.webhook_attempts,
             cfg.webhook_first_delay,
             job_metrics.clone(),
+            cfg.webhook_allow_private,
         )?;
         let ctx = Context {
             store: Arc::new(store) as Arc<dyn JobStore>,
@@ -353,6 +357,7 @@ impl Application {
                 tmp_dir,
                 request_timeout: cfg.request_timeout,
                 upload_timeout: cfg.upload_timeout,
+                webhook_allow_private: cfg.webhook_allow_private,
             }),
             registry,
             decode,

@@ -63,7 +63,8 @@ fn check_options(state: &AppState, o: &JobOptions) -> Result<Option<Skeleton>, A
         )));
     }
     if let Some(url) = &o.webhook_url {
-        check_url(url).map_err(|e| ApiError::unprocessable(e.code(), e.to_string()))?;
+        check_url(url, state.cfg.webhook_allow_private)
+            .map_err(|e| ApiError::unprocessable(e.code(), e.to_string()))?;
     }
     let skeleton = match &o.skeleton {
         Some(tree) => {

@@ -54,6 +54,8 @@ pub struct ApiConfig {
     /// Time limit of requests other than uploads, SSE and `/v1/rig`.
     pub request_timeout: Duration,
     pub upload_timeout: Duration,
+    /// `webhook_url` may name a loopback or private address.
+    pub webhook_allow_private: bool,
 }
 
 pub type SnapshotFn = Arc<dyn Fn() -> MetricsSnapshot + Send + Sync>;

@@ -115,6 +115,11 @@ pub struct ServeArgs {
     /// Delivery attempts per webhook.
     #[arg(long, env = "RIGSERVE_WEBHOOK_ATTEMPTS", default_value_t = 6)]
     pub webhook_attempts: u32,
+    /// Let `webhook_url` name loopback and private-network addresses (a local receiver
+    /// while testing). Off, webhooks go only to public addresses, so clients cannot make
+    /// the server call into its own network.
+    #[arg(long, env = "RIGSERVE_WEBHOOK_ALLOW_PRIVATE")]
+    pub webhook_allow_private: bool,
     /// Log as JSON lines.
     #[arg(long, env = "RIGSERVE_LOG_JSON")]
     pub log_json: bool,
@@ -172,6 +177,7 @@ pub fn run(a: ServeArgs) -> anyhow::Result<()> {
     cfg.api_keys_file = a.api_keys_file.clone();
     cfg.webhook_secret = a.webhook_secret.clone();
     cfg.webhook_attempts = a.webhook_attempts;
+    cfg.webhook_allow_private = a.webhook_allow_private;
     let rt = tokio::runtime::Builder::new_multi_thread()
         .enable_all()
         .build()?;

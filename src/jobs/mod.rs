@@ -16,6 +16,7 @@ pub mod store;
 pub mod sweeper;
 pub mod view;
 pub mod webhook;
+pub mod webhook_target;
 pub mod worker;
 
 pub use blobs::{BlobError, BlobKind, Blobs};

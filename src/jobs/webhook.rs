@@ -6,6 +6,7 @@
 
 use super::metrics::JobMetrics;
 use super::view::JobView;
+use super::webhook_target::{refused_host, PublicOnly};
 use base64::Engine as _;
 use hmac::{Hmac, Mac};
 use sha2::Sha256;
@@ -17,13 +18,15 @@ pub enum WebhookError {
     Secret(String),
     #[error("webhook_url must be an absolute http(s) URL: {0}")]
     Url(String),
+    #[error("webhook_url must point at a public address: {0} (a server operator can allow private ones with --webhook-allow-private)")]
+    NotPublic(String),
 }
 
 impl WebhookError {
     pub fn code(&self) -> &'static str {
         match self {
             WebhookError::Secret(_) => "webhook_secret_invalid",
-            WebhookError::Url(_) => "webhook_url_invalid",
+            WebhookError::Url(_) | WebhookError::NotPublic(_) => "webhook_url_invalid",
         }
     }
 }
@@ -35,13 +38,20 @@ pub struct Webhooks {
     attempts: u32,
     first_delay: Duration,
     metrics: JobMetrics,
+    allow_private: bool,
 }
 
-/// Checks a client-supplied `webhook_url` before a job is accepted.
-pub fn check_url(url: &str) -> Result<(), WebhookError> {
-    match reqwest::Url::parse(url) {
-        Ok(u) if matches!(u.scheme(), "http" | "https") && u.host().is_some() => Ok(()),
-        _ => Err(WebhookError::Url(url.chars().take(200).collect())),
+/// Checks a client-supplied `webhook_url` before a job is accepted (and again before it
+/// is delivered): an absolute http(s) URL, and unless `allow_private`, not a literal
+/// non-public address or a name for this machine ([`super::webhook_target`]).
+pub fn check_url(url: &str, allow_private: bool) -> Result<(), WebhookError> {
+    let u = match reqwest::Url::parse(url) {
+        Ok(u) if matches!(u.scheme(), "http" | "https") && u.host().is_some() => u,
+        _ => return Err(WebhookError::Url(url.chars().take(200).collect())),
+    };
+    match u.host().and_then(|h| refused_host(&h)) {
+        Some(why) if !allow_private => Err(WebhookError::NotPublic(why)),
+        _ => Ok(()),
     }
 }
 
@@ -51,6 +61,7 @@ impl Webhooks {
         attempts: u32,
         first_delay: Duration,
         metrics: JobMetrics,
+        allow_private: bool,
     ) -> Result<Webhooks, WebhookError> {
         let key = secret
             .map(|s| {
@@ -60,9 +71,13 @@ impl Webhooks {
                     .map_err(|e| WebhookError::Secret(e.to_string()))
             })
             .transpose()?;
-        let client = reqwest::Client::builder()
+        let mut client = reqwest::Client::builder()
             .timeout(Duration::from_secs(10))
-            .redirect(reqwest::redirect::Policy::none())
+            .redirect(reqwest::redirect::Policy::none());
+        if !allow_private {
+            client = client.dns_resolver(std::sync::Arc::new(PublicOnly));
+        }
+        let client = client
             .build()
             .map_err(|e| WebhookError::Secret(e.to_string()))?;
         Ok(Webhooks {
@@ -71,6 +86,7 @@ impl Webhooks {
             attempts: attempts.max(1),
             first_delay,
             metrics,
+            allow_private,
         })
     }
 
@@ -91,6 +107,16 @@ impl Webhooks {
     async fn deliver(&self, url: &str, job: &JobView) -> bool {
         let kind = format!("job.{}", job.status.as_str());
         let id = format!("{}.{}", job.id, job.status.as_str());
+        // Checked at submission too; a job submitted to a replica with other settings, or
+        // before this check existed, is not delivered to a private address either.
+        if let Err(e) = check_url(url, self.allow_private) {
+            tracing::warn!(job = %job.id, error = %e, "webhook not sent");
+            self.metrics
+                .webhook_deliveries
+                .with_label_values(&["abandoned"])
+                .inc();
+            return false;
+        }
         let mut delay = self.first_delay;
         for attempt in 1..=self.attempts {
             let timestamp = chrono::Utc::now().timestamp();
@@ -160,9 +186,13 @@ mod tests {
 
     #[test]
     fn urls_are_checked() {
-        assert!(check_url("https://example.com/hook").is_ok());
-        assert!(check_url("http://127.0.0.1:9/x").is_ok());
-        assert!(check_url("ftp://example.com").is_err());
-        assert!(check_url("not a url").is_err());
+        assert!(check_url("https://example.com/hook", false).is_ok());
+        assert!(check_url("ftp://example.com", false).is_err());
+        assert!(check_url("not a url", true).is_err());
+        // Loopback only when the operator allows private addresses.
+        let err = check_url("http://127.0.0.1:9/x", false).unwrap_err();
+        assert_eq!(err.code(), "webhook_url_invalid");
+        assert!(err.to_string().contains("public address"), "{err}");
+        assert!(check_url("http://127.0.0.1:9/x", true).is_ok());
     }
 }

@@ -635,8 +635,27 @@ async fn webhooks_are_signed_and_delivered() {
     let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
     let hook_url = format!("http://{}/hook", listener.local_addr().unwrap());
     tokio::spawn(async move { axum::serve(listener, hook).await });
+    // By default a client cannot make the server call into its own network: the
+    // receiver on loopback is refused, by address or by name.
+    let port = hook_url.rsplit(':').next().unwrap();
+    let closed = spawn_app(|_| {}).await;
+    for url in [
+        hook_url.clone(),
+        format!("http://localhost:{port}"),
+        "http://169.254.169.254/latest/meta-data/".to_string(),
+        "http://[::1]/hook".to_string(),
+    ] {
+        let q = format!("?webhook_url={}", urlencode(&url));
+        let r = closed.post_mesh(figure_obj(), "model/obj", &q).await;
+        assert_error(r, 422, "webhook_url_invalid").await;
+    }
+    closed.stop().await;
     let secret = "whsec_MfKQ9r8GKYqrTwjUPD8ILPZIo2LaLaSw";
-    let app = spawn_app(|c| c.webhook_secret = Some(secret.into())).await;
+    let app = spawn_app(|c| {
+        c.webhook_secret = Some(secret.into());
+        c.webhook_allow_private = true;
+    })
+    .await;
     let job: Value = app
         .post_mesh(
             figure_obj(),
