@@ -151,6 +151,38 @@ fn a_bone_reaching_absurdly_far_is_refused_and_a_long_one_skins() {
     assert_well_formed(&long, n, 4);
 }
 
+/// Weights do not depend on the mesh's units: skinning runs in the mesh's unit frame.
+/// In the file's own units a figure 1e30 long squared its distances past `f32` (every
+/// vertex went to bone 0), and one 1e-10 long fell under the voxelizer's resolution.
+#[test]
+fn weights_are_the_same_in_any_units() {
+    let (mesh, skel) = two_legs();
+    let cfg = SkinConfig::default();
+    let want = skin(&mesh, &skel, &cfg).unwrap();
+    for (scale, shift) in [(1e-10, 0.0), (1e-30, 1e-29), (1e30, -3e30), (1e5, 7e5)] {
+        let moved = |p: Vec3| p * scale + Vec3::splat(shift);
+        let m = Mesh {
+            positions: mesh.positions.iter().map(|&p| moved(p)).collect(),
+            ..mesh.clone()
+        };
+        let mut s = skel.clone();
+        s.map_points(moved);
+        let got = skin(&m, &s, &cfg).unwrap();
+        for (v, (a, b)) in want.per_vertex.iter().zip(&got.per_vertex).enumerate() {
+            // Bone by bone (near-ties may list two bones in either order).
+            let of =
+                |l: &[(u32, f32)], bone: u32| l.iter().find(|x| x.0 == bone).map_or(0.0, |x| x.1);
+            for bone in 0..skel.len() as u32 {
+                let (x, y) = (of(a, bone), of(b, bone));
+                assert!(
+                    (x - y).abs() < 1e-3,
+                    "scale {scale}: vertex {v}: {a:?} vs {b:?}"
+                );
+            }
+        }
+    }
+}
+
 /// A column body with a head, and a hat floating above the head (its own closed part).
 fn body_with_floating_hat() -> (Mesh, Skeleton) {
     let mut mesh = Mesh::default();

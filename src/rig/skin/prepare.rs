@@ -8,7 +8,7 @@ use super::components::{self, Components};
 use super::geodesic::{Stencils, Volume};
 use super::voxel::{self, Grid, Region};
 use super::{ms, validate, CandidateScorer, SkinConfig, SkinError, SkinTimings, Welded};
-use crate::mesh::Mesh;
+use crate::mesh::{Mesh, Normalization};
 use crate::rig::{Skeleton, SkinWeights};
 use glam::Vec3;
 use std::time::Instant;
@@ -66,10 +66,34 @@ impl Voxels {
     }
 }
 
-/// A mesh made ready for skinning by any skeleton: welded ([`Welded`]) and voxelized.
+/// The frame skinning runs in: the mesh's units scaled by the power of two that brings its
+/// longest half-side into [0.7, 1.4], not moved. Weights do not depend on the units, but in
+/// a file's own units a mesh 1e30 long squared its distances past `f32` (every vertex went
+/// to bone 0) and one 1e-7 long fell under the voxelizer's resolution (at 1e-10 nearly all
+/// went to bone 0). A power of two, and no shift, so that every product, sum and square
+/// root is the one the mesh's own units give, scaled exactly: a mesh already about a unit
+/// across (most files, in metres) skins bit for bit as before.
+pub fn skin_frame(positions: &[Vec3]) -> Normalization {
+    let half = Normalization::from_points(positions).half_extent;
+    let k = half.log2().round().clamp(-126.0, 126.0) as i32;
+    Normalization {
+        center: Vec3::ZERO,
+        half_extent: 2f32.powi(k),
+    }
+}
+
+/// A mesh made ready for skinning by any skeleton: welded ([`Welded`]), moved into its
+/// unit frame and voxelized.
+///
+/// Skinning runs in the mesh's own units scaled by a power of two ([`skin_frame`]), the
+/// skeleton following the mesh there.
 pub struct Prepared {
+    /// Welded, its positions in the unit frame.
     welded: Welded,
     voxels: Voxels,
+    norm: Normalization,
+    /// The mesh's bounding box in its own frame, where skeletons are checked.
+    bounds: (Vec3, Vec3),
 }
 
 /// Checks what can be checked of the mesh and the settings without a skeleton, then
@@ -82,9 +106,20 @@ pub fn prepare(mesh: &Mesh, cfg: &SkinConfig) -> Result<Prepared, SkinError> {
 impl Prepared {
     /// [`prepare`] of a mesh and settings the caller has checked.
     pub(super) fn checked(mesh: &Mesh, cfg: &SkinConfig) -> Prepared {
-        let welded = Welded::new(mesh);
+        // Welded in the file's frame, where copies of a vertex have equal bits.
+        let mut welded = Welded::new(mesh);
+        let bounds = welded.mesh.bounds();
+        let norm = skin_frame(&welded.mesh.positions);
+        for p in &mut welded.mesh.positions {
+            *p = norm.apply(*p);
+        }
         let voxels = Voxels::new(&welded.mesh, cfg);
-        Prepared { welded, voxels }
+        Prepared {
+            welded,
+            voxels,
+            norm,
+            bounds,
+        }
     }
 
     /// [`super::skin_with_timed`] of the mesh this was prepared from, with the same
@@ -95,7 +130,7 @@ impl Prepared {
         cfg: &SkinConfig,
         model: Option<&dyn CandidateScorer>,
     ) -> Result<(SkinWeights, SkinTimings), SkinError> {
-        validate::check_skeleton(&self.welded.mesh, skeleton, cfg)?;
+        validate::check_skeleton(self.bounds, skeleton, cfg)?;
         self.skin_checked(skeleton, cfg, model)
     }
 
@@ -107,9 +142,11 @@ impl Prepared {
         model: Option<&dyn CandidateScorer>,
     ) -> Result<(SkinWeights, SkinTimings), SkinError> {
         let mesh = &self.welded.mesh;
+        let mut unit = skeleton.clone();
+        unit.map_points(|p| self.norm.apply(p));
         let (w, times) = match model {
-            Some(m) => super::learned::skin_learned_in(mesh, &self.voxels, skeleton, cfg, m)?,
-            None => super::geometric_in(mesh, &self.voxels, skeleton, cfg)?,
+            Some(m) => super::learned::skin_learned_in(mesh, &self.voxels, &unit, cfg, m)?,
+            None => super::geometric_in(mesh, &self.voxels, &unit, cfg)?,
         };
         Ok((self.welded.spread(&w), times))
     }

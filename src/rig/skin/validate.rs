@@ -3,6 +3,7 @@
 use super::{SkinConfig, SkinError};
 use crate::mesh::Mesh;
 use crate::rig::Skeleton;
+use glam::Vec3;
 
 /// Checks the skeleton's own invariants ([`Skeleton::validate`]), the mesh, and that the
 /// skeleton sits on the mesh: a rig in other units or another frame puts most joints far
@@ -12,7 +13,7 @@ pub fn check(mesh: &Mesh, skeleton: &Skeleton, cfg: &SkinConfig) -> Result<(), S
     cfg.check()?;
     skeleton.validate(cfg.max_bones)?;
     mesh_alone(mesh)?;
-    sits_on(mesh, skeleton, cfg)
+    sits_on(mesh.bounds(), skeleton, cfg)
 }
 
 /// The settings and the mesh alone (what voxelizing needs of them).
@@ -21,10 +22,14 @@ pub fn check_mesh(mesh: &Mesh, cfg: &SkinConfig) -> Result<(), SkinError> {
     mesh_alone(mesh)
 }
 
-/// The skeleton, and that it sits on the (checked) mesh.
-pub fn check_skeleton(mesh: &Mesh, skeleton: &Skeleton, cfg: &SkinConfig) -> Result<(), SkinError> {
+/// The skeleton, and that it sits on the (checked) mesh whose bounding box is `bounds`.
+pub fn check_skeleton(
+    bounds: (Vec3, Vec3),
+    skeleton: &Skeleton,
+    cfg: &SkinConfig,
+) -> Result<(), SkinError> {
     skeleton.validate(cfg.max_bones)?;
-    sits_on(mesh, skeleton, cfg)
+    sits_on(bounds, skeleton, cfg)
 }
 
 fn mesh_alone(mesh: &Mesh) -> Result<(), SkinError> {
@@ -45,8 +50,8 @@ fn mesh_alone(mesh: &Mesh) -> Result<(), SkinError> {
     Ok(())
 }
 
-fn sits_on(mesh: &Mesh, skeleton: &Skeleton, cfg: &SkinConfig) -> Result<(), SkinError> {
-    let (lo, hi) = mesh.bounds();
+fn sits_on(bounds: (Vec3, Vec3), skeleton: &Skeleton, cfg: &SkinConfig) -> Result<(), SkinError> {
+    let (lo, hi) = bounds;
     Ok(crate::rig::placement::check(
         skeleton,
         lo,
