@@ -20,7 +20,7 @@ use crate::mesh::sample::SplitMix64;
 use crate::mesh::{self, Limits, Mesh};
 use crate::rig::groundtruth;
 use crate::rig::skin::features::{features, BONE_FEATURES, PAIR_FEATURES, VERT_FEATURES};
-use crate::rig::skin::{candidates_timed, skin_frame, SkinConfig, Welded};
+use crate::rig::skin::{candidates_timed, into_skin_frame, SkinConfig, Welded};
 use serde::Serialize;
 use std::io::Write;
 use std::path::Path;
@@ -130,10 +130,7 @@ pub fn build_skin(
                 ..Mesh::default()
             });
             // Into the frame skinning at serving time runs in.
-            let norm = skin_frame(&posed.mesh.positions);
-            for p in &mut posed.mesh.positions {
-                *p = norm.apply(*p);
-            }
+            let norm = into_skin_frame(&mut posed.mesh);
             let mut skel = skel;
             skel.map_points(|p| norm.apply(p));
             let cands = match candidates_timed(&posed.mesh, &skel, &cfg.skin, cfg.k) {

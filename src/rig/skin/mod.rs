@@ -39,7 +39,7 @@ use geodesic::{Nearest, Ring, Stamp, Stencils};
 use glam::Vec3;
 pub use learned::from_scores;
 use prepare::Voxels;
-pub use prepare::{prepare, skin_frame, Prepared};
+pub use prepare::{into_skin_frame, prepare, skin_frame, Prepared};
 use serde::Serialize;
 use std::time::Instant;
 pub use weld::Welded;

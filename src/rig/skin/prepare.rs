@@ -82,13 +82,19 @@ pub fn skin_frame(positions: &[Vec3]) -> Normalization {
     }
 }
 
-/// A mesh made ready for skinning by any skeleton: welded ([`Welded`]), moved into its
-/// unit frame and voxelized.
-///
-/// Skinning runs in the mesh's own units scaled by a power of two ([`skin_frame`]), the
-/// skeleton following the mesh there.
+/// Moves `mesh` into its [`skin_frame`] and returns that frame, for the skeleton to follow.
+pub fn into_skin_frame(mesh: &mut Mesh) -> Normalization {
+    let norm = skin_frame(&mesh.positions);
+    for p in &mut mesh.positions {
+        *p = norm.apply(*p);
+    }
+    norm
+}
+
+/// A mesh made ready for skinning by any skeleton: welded ([`Welded`]), scaled into its
+/// [`skin_frame`] and voxelized; the skeleton follows the mesh there.
 pub struct Prepared {
-    /// Welded, its positions in the unit frame.
+    /// Welded, its positions in the skin frame.
     welded: Welded,
     voxels: Voxels,
     norm: Normalization,
@@ -109,10 +115,7 @@ impl Prepared {
         // Welded in the file's frame, where copies of a vertex have equal bits.
         let mut welded = Welded::new(mesh);
         let bounds = welded.mesh.bounds();
-        let norm = skin_frame(&welded.mesh.positions);
-        for p in &mut welded.mesh.positions {
-            *p = norm.apply(*p);
-        }
+        let norm = into_skin_frame(&mut welded.mesh);
         let voxels = Voxels::new(&welded.mesh, cfg);
         Prepared {
             welded,
