@@ -43,12 +43,13 @@ def main(argv=None) -> int:
     rows = [dict(zip(header, r)) for r in body]
     hold = hold_rows(rows)
     os.makedirs(a.out, exist_ok=True)
+    split_col = header.index("split")
     out = ["\t".join(header)]
     for cells, r in zip(body, rows):
         if r["split"] != "train":
             continue
         cells = list(cells)
-        cells[header.index("split")] = "hold" if r["file"] in hold else "train"
+        cells[split_col] = "hold" if r["file"] in hold else "train"
         out.append("\t".join(cells))
         link = os.path.join(a.out, r["file"])
         if not os.path.lexists(link):
