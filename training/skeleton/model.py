@@ -348,17 +348,35 @@ class SkeletonModel(nn.Module):
         return {"encoder": count(self.encoder), "decoder": count(self.decoder), "total": count(self)}
 
 
-def loss_fn(logits, input_ids, ignore_class_target: bool = True):
+def loss_fn(logits, input_ids, ignore_class_target: bool = True, coord_sigma: float = 0.0):
     """Next-token cross-entropy over token positions; padding ignored. The class token
-    (position 1) is an input hint, not a prediction target."""
+    (position 1) is an input hint, not a prediction target.
+
+    ``coord_sigma`` > 0 (in bins) replaces the one-hot target of a coordinate token by a
+    Gaussian over the neighbouring bins. Plain cross-entropy scores a joint one bin off as
+    wrong as one across the body, so nothing in the loss says which mistakes cost
+    distance; the smoothed target does, and its minimum is still at the right bin."""
     targets = input_ids[:, 1:].clone()
     targets[targets == PAD] = -100
     if ignore_class_target:
         targets[:, 0] = -100
     lg = logits[:, :-1].float()
-    return F.cross_entropy(lg.reshape(-1, lg.shape[-1]), targets.reshape(-1), ignore_index=-100, reduction="sum"), (
-        targets != -100
-    ).sum()
+    flat_t = targets.reshape(-1)
+    flat_lg = lg.reshape(-1, lg.shape[-1])
+    count = (targets != -100).sum()
+    if coord_sigma <= 0:
+        return F.cross_entropy(flat_lg, flat_t, ignore_index=-100, reduction="sum"), count
+    is_coord = (flat_t >= 0) & (flat_t < COORD_BINS)
+    other = flat_t.masked_fill(is_coord, -100)
+    loss = F.cross_entropy(flat_lg, other, ignore_index=-100, reduction="sum")
+    if bool(is_coord.any()):
+        logp = F.log_softmax(flat_lg[is_coord], dim=-1)
+        bins = torch.arange(COORD_BINS, device=lg.device, dtype=torch.float32)
+        d = bins[None, :] - flat_t[is_coord].float()[:, None]
+        soft = torch.exp(-0.5 * (d / coord_sigma) ** 2)
+        soft = soft / soft.sum(dim=1, keepdim=True)
+        loss = loss - (soft * logp[:, :COORD_BINS]).sum()
+    return loss, count
 
 
 def save_checkpoint(path, model, cfg, **extra):

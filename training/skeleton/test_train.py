@@ -62,6 +62,27 @@ def test_loss_ignores_padding_and_class_target():
     assert int(cnt) == 2  # targets 5 and <eos>
 
 
+def test_smoothed_coordinate_loss_ranks_near_misses_above_far_ones():
+    ids = torch.tensor([[M.BOS, M.CLS_BASE, 100, M.EOS]])
+
+    def peaked_at(tok):
+        lg = torch.zeros(1, 4, M.VOCAB_SIZE)
+        lg[0, 1, tok] = 8.0  # predicts the coordinate
+        lg[0, 2, M.EOS] = 8.0
+        return lg
+
+    right, near, far = (float(M.loss_fn(peaked_at(t), ids, coord_sigma=2.0)[0]) for t in (100, 101, 180))
+    assert right < near < far
+    # One-hot cross-entropy cannot tell a near miss from a far one.
+    near1, far1 = (float(M.loss_fn(peaked_at(t), ids)[0]) for t in (101, 180))
+    assert abs(near1 - far1) < 1e-4
+    # Special tokens keep their one-hot target: only the coordinate term changes.
+    lg = peaked_at(100)
+    plain, _ = M.loss_fn(lg, ids)
+    smooth, cnt = M.loss_fn(lg, ids, coord_sigma=1e-3)
+    assert int(cnt) == 2 and abs(float(plain) - float(smooth)) < 1e-4
+
+
 def test_bucketed_sampler_batches_have_similar_lengths():
     d = write_fake_dataset(tempfile.mkdtemp(prefix="skel_ds_"), n_items=40, long_item=False)
     ds = SkeletonDataset(d, log=lambda *_: None)

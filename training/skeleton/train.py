@@ -60,6 +60,8 @@ def parse_args(argv=None):
                     help="also write weights-only snapshots <ckpt-dir>/weights_<step>.pt this often (0 = off), "
                          "so a later, geometric evaluation can compare steps")
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--coord-sigma", type=float, default=0.0,
+                    help="Gaussian width, in bins, of the training target of coordinate tokens (0 = one-hot)")
     ap.add_argument("--config", choices=["full", "tiny"], default="full")
     ap.add_argument("--d-model", type=int)
     ap.add_argument("--heads", type=int)
@@ -228,7 +230,7 @@ def main(argv=None):
         pts, ids = sampler.batch(a.batch, n_pts, a.cls_drop)
         with autocast(a):
             logits = model(pts, ids)
-        lsum, cnt = loss_fn(logits, ids)
+        lsum, cnt = loss_fn(logits, ids, coord_sigma=a.coord_sigma)
         loss = lsum / cnt.clamp(min=1)
         opt.zero_grad(set_to_none=True)
         loss.backward()
