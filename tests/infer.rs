@@ -212,7 +212,7 @@ fn ragged_decode_equals_recompute() {
 /// The same on the shipped model, whose 32-wide heads take the attention op's vectorized
 /// path (the fixture's 8-wide heads take the portable one) over a half-precision cache
 /// (the fixture's is `f32`). Rounding the keys and values to half moves the logits by a
-/// few thousandths (of a range of about 14); the tokens must not change.
+/// few thousandths (of a range of about 14); a token may change only at a near tie.
 #[test]
 fn shipped_ragged_decode_equals_recompute() {
     let dir = root().join("models/skeleton");
@@ -251,8 +251,14 @@ fn ragged_equals_recompute(dir: &Path, tol: f32) {
         };
         let mut next = Vec::new();
         for (row, &r) in live.iter().enumerate() {
-            let t = argmax(logits.row(row));
-            assert_eq!(t, argmax(full.row(r)), "row {r} step {s}");
+            let t = argmax(full.row(r));
+            let got = argmax(logits.row(row));
+            // Logits within `tol` of each other can only swap two tokens whose recomputed
+            // logits are within 2·tol: a near tie, which a half cache may break either way
+            // (the shipped model's coordinate logits are flat near the right bin). Anything
+            // wider is a wrong token. Both paths then continue with the recompute's token.
+            let margin = full[[r, t as usize]] - full[[r, got as usize]];
+            assert!(got == t || margin <= 2.0 * tol, "row {r} step {s}: {got} for {t}, margin {margin}");
             for (x, y) in full.row(r).iter().zip(logits.row(row)) {
                 max_diff = max_diff.max((x - y).abs());
             }
