@@ -98,8 +98,13 @@ if [ "$(id -u)" = 0 ]; then
   fi
 fi
 
+# The log files exist before the server starts: the background subshell opens its
+# redirections only when it is scheduled, and on a busy machine the first poll below
+# could otherwise read a file not yet there (fatal under `set -e`).
+: >"$work/stdout"
+: >"$work/stderr"
 (cd "$root/app" && exec "${as_user[@]}" env -i "${env_args[@]}" ./rigserve serve) \
-  >"$work/stdout" 2>"$work/stderr" &
+  >>"$work/stdout" 2>>"$work/stderr" &
 pid=$!
 
 port=

@@ -258,7 +258,10 @@ fn ragged_equals_recompute(dir: &Path, tol: f32) {
             // (the shipped model's coordinate logits are flat near the right bin). Anything
             // wider is a wrong token. Both paths then continue with the recompute's token.
             let margin = full[[r, t as usize]] - full[[r, got as usize]];
-            assert!(got == t || margin <= 2.0 * tol, "row {r} step {s}: {got} for {t}, margin {margin}");
+            assert!(
+                got == t || margin <= 2.0 * tol,
+                "row {r} step {s}: {got} for {t}, margin {margin}"
+            );
             for (x, y) in full.row(r).iter().zip(logits.row(row)) {
                 max_diff = max_diff.max((x - y).abs());
             }
