@@ -9,6 +9,7 @@ use super::auth::Caller;
 use super::error::ApiError;
 use super::jobs::owned_job;
 use super::AppState;
+use axum::extract::rejection::QueryRejection;
 use axum::extract::{Path, Query, State};
 use axum::http::HeaderMap;
 use axum::response::sse::{Event, KeepAlive, Sse};
@@ -21,20 +22,37 @@ pub struct EventsQuery {
     last_event_id: Option<i64>,
 }
 
+/// Where a stream resumes: the `Last-Event-ID` header, else the query parameter, else the
+/// start. Either one that is not an event id is refused rather than read as the start: a
+/// client that sent one believes it resumes, and a full replay would say otherwise.
+fn resume_after(
+    headers: &HeaderMap,
+    query: Result<Query<EventsQuery>, QueryRejection>,
+) -> Result<i64, ApiError> {
+    let bad = |m: String| ApiError::unprocessable("invalid_options", m);
+    let from_query = match query {
+        Ok(Query(q)) => q.last_event_id,
+        Err(e) => return Err(bad(format!("query: {}", e.body_text()))),
+    };
+    match headers.get("last-event-id") {
+        Some(v) => v
+            .to_str()
+            .ok()
+            .and_then(|v| v.trim().parse::<i64>().ok())
+            .ok_or_else(|| bad(format!("Last-Event-ID {v:?} is not an event id"))),
+        None => Ok(from_query.unwrap_or(0)),
+    }
+}
+
 pub async fn events(
     State(state): State<AppState>,
     caller: Caller,
     Path(id): Path<String>,
-    Query(q): Query<EventsQuery>,
+    query: Result<Query<EventsQuery>, QueryRejection>,
     headers: HeaderMap,
 ) -> Result<Sse<impl Stream<Item = Result<Event, Infallible>>>, ApiError> {
     owned_job(&state, &caller, &id).await?;
-    let mut last = headers
-        .get("last-event-id")
-        .and_then(|v| v.to_str().ok())
-        .and_then(|v| v.trim().parse::<i64>().ok())
-        .or(q.last_event_id)
-        .unwrap_or(0);
+    let mut last = resume_after(&headers, query)?;
     let mut watch = state.ctx.notifier.watch(&id);
     let stream = async_stream::stream! {
         loop {

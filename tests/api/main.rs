@@ -574,6 +574,36 @@ async fn events_stream_to_the_end_and_resume() {
 }
 
 #[tokio::test]
+async fn a_resume_point_that_is_not_an_event_id_is_refused() {
+    // No workers: the job stays queued, and the answers come before any stream opens.
+    let app = spawn_app(|c| c.workers = 0).await;
+    let id = id_of(&app.submit_figure("").await);
+    let base = format!("/v1/jobs/{id}/events");
+    for (query, header) in [
+        ("?last_event_id=null", None),
+        ("?last_event_id=1&last_event_id=2", None),
+        ("", Some("abc")),
+        ("?last_event_id=1", Some("")),
+    ] {
+        let mut req = app.client.get(app.url(&format!("{base}{query}")));
+        if let Some(h) = header {
+            req = req.header("last-event-id", h);
+        }
+        let r = req.send().await.unwrap();
+        assert_eq!(r.status(), 422, "{query} {header:?}");
+        let body: Value = r.json().await.unwrap();
+        assert_eq!(
+            body["error_type"], "invalid_options",
+            "{query} {header:?}: {body}"
+        );
+    }
+    // An unknown job is still not found, whatever the resume point.
+    let r = app.get("/v1/jobs/missing/events?last_event_id=x").await;
+    assert_eq!(r.status(), 404);
+    app.stop().await;
+}
+
+#[tokio::test]
 async fn health_readiness_and_metrics() {
     let app = spawn_app(|_| {}).await;
     let r = app.get("/healthz").await;
