@@ -3,6 +3,7 @@
 
 use crate::jobs::{BlobError, StoreError};
 use crate::mesh::MeshError;
+use axum::extract::rejection::QueryRejection;
 use axum::http::{header, HeaderValue, StatusCode};
 use axum::response::{IntoResponse, Response};
 use axum::Json;
@@ -87,6 +88,14 @@ impl From<BlobError> for ApiError {
     fn from(e: BlobError) -> Self {
         tracing::error!(error = %e, "blob store");
         ApiError::new(StatusCode::SERVICE_UNAVAILABLE, e.code(), e.to_string()).retry_after(5)
+    }
+}
+
+/// A query string the route's parameters cannot be read from: the framework's own answer is
+/// plain text, not `{error, error_type}`.
+impl From<QueryRejection> for ApiError {
+    fn from(e: QueryRejection) -> Self {
+        ApiError::unprocessable("invalid_options", format!("query: {}", e.body_text()))
     }
 }
 

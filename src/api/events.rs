@@ -29,18 +29,17 @@ fn resume_after(
     headers: &HeaderMap,
     query: Result<Query<EventsQuery>, QueryRejection>,
 ) -> Result<i64, ApiError> {
-    let bad = |m: String| ApiError::unprocessable("invalid_options", m);
-    let from_query = match query {
-        Ok(Query(q)) => q.last_event_id,
-        Err(e) => return Err(bad(format!("query: {}", e.body_text()))),
-    };
+    let Query(q) = query?;
     match headers.get("last-event-id") {
         Some(v) => v
             .to_str()
             .ok()
             .and_then(|v| v.trim().parse::<i64>().ok())
-            .ok_or_else(|| bad(format!("Last-Event-ID {v:?} is not an event id"))),
-        None => Ok(from_query.unwrap_or(0)),
+            .ok_or_else(|| {
+                let m = format!("Last-Event-ID {v:?} is not an event id");
+                ApiError::unprocessable("invalid_options", m)
+            }),
+        None => Ok(q.last_event_id.unwrap_or(0)),
     }
 }
 
