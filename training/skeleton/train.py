@@ -26,39 +26,23 @@ from .init_from_onnx import config_of, load_onnx_weights
 from .model import PAD, ModelConfig, SkeletonModel, loss_fn, tiny_config
 
 
-def parse_args(argv=None):
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+def add_shared_args(ap, batch: int, lr: float, min_lr_ratio: float, threads: int):
+    """The data, optimiser, sampling and model-size options both trainers take
+    (`train.py` here and `train_fast.py`), with the defaults that differ passed in."""
     ap.add_argument("--data", action="append", required=True, help="dataset dir (repeatable)")
     ap.add_argument("--mix", default=None, help="comma-separated sampling weights, one per --data (default: by size)")
-    ap.add_argument("--val", default=None, help="held-out dataset dir, for monitoring only (e.g. the dev split)")
-    ap.add_argument("--ckpt-dir", required=True)
-    ap.add_argument("--resume", action="store_true", help="continue from <ckpt-dir>/last.pt if present")
     ap.add_argument("--init-onnx", default=None,
                     help="start a new run from the weights of an exported model folder (its model_config.json sets the size)")
-    ap.add_argument("--steps", type=int, default=20000)
-    ap.add_argument("--batch", type=int, default=32)
-    ap.add_argument("--lr", type=float, default=3e-4)
-    ap.add_argument("--min-lr-ratio", type=float, default=0.1)
-    ap.add_argument("--warmup", type=int, default=500)
+    ap.add_argument("--batch", type=int, default=batch)
+    ap.add_argument("--lr", type=float, default=lr)
+    ap.add_argument("--min-lr-ratio", type=float, default=min_lr_ratio)
     ap.add_argument("--weight-decay", type=float, default=0.01)
     ap.add_argument("--clip", type=float, default=1.0)
     ap.add_argument("--points-min", type=int, default=512, help="random subset size per step, lower bound")
     ap.add_argument("--points-max", type=int, default=2048, help="random subset size per step, upper bound")
     ap.add_argument("--cls-drop", type=float, default=0.3, help="probability of replacing the class token with <cls:none>")
-    ap.add_argument("--precision", choices=["auto", "bf16", "fp32"], default="auto",
-                    help="bf16 = torch.autocast('cpu', bfloat16). auto: bf16 only where the CPU has native bf16 "
-                         "(avx512_bf16 / amx_bf16); elsewhere bf16 matmuls are emulated and ~50-100x slower")
     ap.add_argument("--bucket-pool", type=int, default=8, help="length bucketing pool, in batches (1 = off)")
-    ap.add_argument("--threads", type=int, default=2)
-    ap.add_argument("--log-every", type=int, default=10)
-    ap.add_argument("--ckpt-every", type=int, default=250)
-    ap.add_argument("--val-every", type=int, default=500)
-    ap.add_argument("--ema", type=float, default=0.0,
-                    help="keep an exponential moving average of the weights with this decay (0 = off); "
-                         "snapshots and --val then use the average")
-    ap.add_argument("--snapshot-every", type=int, default=0,
-                    help="also write weights-only snapshots <ckpt-dir>/weights_<step>.pt this often (0 = off), "
-                         "so a later, geometric evaluation can compare steps")
+    ap.add_argument("--threads", type=int, default=threads, help="CPU threads (0 = torch's default)")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--coord-sigma", type=float, default=0.0,
                     help="Gaussian width, in bins, of the training target of coordinate tokens (0 = one-hot)")
@@ -70,6 +54,28 @@ def parse_args(argv=None):
     ap.add_argument("--d-ff", type=int)
     ap.add_argument("--dropout", type=float)
     ap.add_argument("--max-tokens", type=int, default=512)
+
+
+def parse_args(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    add_shared_args(ap, batch=32, lr=3e-4, min_lr_ratio=0.1, threads=2)
+    ap.add_argument("--val", default=None, help="held-out dataset dir, for monitoring only (e.g. the dev split)")
+    ap.add_argument("--ckpt-dir", required=True)
+    ap.add_argument("--resume", action="store_true", help="continue from <ckpt-dir>/last.pt if present")
+    ap.add_argument("--steps", type=int, default=20000)
+    ap.add_argument("--warmup", type=int, default=500)
+    ap.add_argument("--precision", choices=["auto", "bf16", "fp32"], default="auto",
+                    help="bf16 = torch.autocast('cpu', bfloat16). auto: bf16 only where the CPU has native bf16 "
+                         "(avx512_bf16 / amx_bf16); elsewhere bf16 matmuls are emulated and ~50-100x slower")
+    ap.add_argument("--log-every", type=int, default=10)
+    ap.add_argument("--ckpt-every", type=int, default=250)
+    ap.add_argument("--val-every", type=int, default=500)
+    ap.add_argument("--ema", type=float, default=0.0,
+                    help="keep an exponential moving average of the weights with this decay (0 = off); "
+                         "snapshots and --val then use the average")
+    ap.add_argument("--snapshot-every", type=int, default=0,
+                    help="also write weights-only snapshots <ckpt-dir>/weights_<step>.pt this often (0 = off), "
+                         "so a later, geometric evaluation can compare steps")
     ap.add_argument("--bench", type=int, default=0, help="only time this many steps (after --bench-warmup steps), then exit")
     ap.add_argument("--bench-warmup", type=int, default=2)
     return ap.parse_args(argv)
@@ -140,7 +146,8 @@ def save_atomic(obj, path):
 def main(argv=None):
     sys.stdout.reconfigure(line_buffering=True)
     a = parse_args(argv)
-    torch.set_num_threads(a.threads)
+    if a.threads:
+        torch.set_num_threads(a.threads)
     if a.precision == "auto":
         a.precision = "bf16" if cpu_has_native_bf16() else "fp32"
         print(f"[train] precision auto -> {a.precision}")
