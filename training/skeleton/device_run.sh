@@ -13,10 +13,12 @@
 #   A2 from the shipped model (models/skeleton), same data  (candidate to ship)
 #   B  from scratch, `train` without `hold` + synthetic    (judged on `hold`, which it never saw)
 # Their weights (`OUT/{A,A2,B}/last.pt`, written every minute) and logs come back.
+# RUNS="A B" trains only those; SYN_SETS, SYN_COUNT, REAL_AUG, SYN_AUG, BATCH and
+# TRAIN_EXTRA (more train_fast flags) size the rest.
 set -u
 carry=$1 out=$2 minutes=$3
 syn_sets=${SYN_SETS:-8} syn_count=${SYN_COUNT:-5000} real_aug=${REAL_AUG:-200} syn_aug=${SYN_AUG:-1}
-batch=${BATCH:-256} extra=${TRAIN_EXTRA:-}
+batch=${BATCH:-256} extra=${TRAIN_EXTRA:-} runs=${RUNS:-A A2 B}
 w=${WORK:-/tmp/rigwork}
 t0=$(date +%s)
 say() { echo "[device_run +$(( $(date +%s) - t0 ))s] $*"; }
@@ -54,14 +56,18 @@ say "data sets written"
 scratch="--latents 64 --d-model 192 --heads 6 --layers 4 --d-ff 768 --dropout 0.05 --lr 8e-4 --coord-sigma 2 --coord-sigma-end 1"
 common="--mix 1,1 --minutes $minutes --batch $batch --threads 2 --ckpt-seconds 60 $extra"
 pids=()
-python3 -m training.skeleton.train_fast --data "$w/ds_real" --data "$w/ds_syn" --out "$out/A" $scratch --seed 21 $common &
-pids+=($!)
-python3 -m training.skeleton.train_fast --data "$w/ds_real" --data "$w/ds_syn" --out "$out/A2" --init-onnx models/skeleton \
-  --lr 1.5e-4 --coord-sigma 1 --seed 22 $common &
-pids+=($!)
-python3 -m training.skeleton.train_fast --data "$w/ds_real_h" --data "$w/ds_syn" --out "$out/B" $scratch --seed 23 $common &
-pids+=($!)
+for run in $runs; do
+  case $run in
+    A) args=(--data "$w/ds_real" $scratch --seed 21) ;;
+    A2) args=(--data "$w/ds_real" --init-onnx models/skeleton --lr 1.5e-4 --coord-sigma 1 --seed 22) ;;
+    B) args=(--data "$w/ds_real_h" $scratch --seed 23) ;;
+    *) say "unknown run $run"; continue ;;
+  esac
+  python3 -m training.skeleton.train_fast "${args[@]}" --data "$w/ds_syn" --out "$out/$run" $common &
+  pids+=($!)
+done
+# Sampled while the runs train: whether the GPU or the Python side of each run limits it.
+(sleep 120; nvidia-smi --query-gpu=utilization.gpu,memory.used --format=csv 2>/dev/null) &
 wait "${pids[@]}"
-nvidia-smi --query-gpu=utilization.gpu,memory.used --format=csv 2>/dev/null
 say "done"
 ls -la "$out" "$out"/*
