@@ -144,7 +144,6 @@ def main(argv=None):
     if a.init_onnx:
         load_onnx_weights(model, a.init_onnx)
     model.to(dev).train()
-    a.warmup = 0  # make_optimizer reads only lr and weight decay
     opt = make_optimizer(model, a)
     use_bf16 = a.precision == "bf16" or (a.precision == "auto" and (dev.type == "cuda" or cpu_has_native_bf16()))
     print(f"[fast] device {dev} bf16 {use_bf16} params {model.num_params()['total']:,} "
