@@ -13,15 +13,15 @@ import numpy as np
 from training.synth.generate import make_character
 from training.synth.glb import read_glb
 
-from .strip_glb import read_accessor, strip
+from .strip_glb import strip, values
 
 
 def _prim_arrays(doc, binary):
     out = []
     for m in doc["meshes"]:
         for p in m["primitives"]:
-            a = {k: read_accessor(doc, binary, v) for k, v in p["attributes"].items()}
-            a["indices"] = read_accessor(doc, binary, p["indices"]).reshape(-1)
+            a = {k: values(doc, binary, v) for k, v in p["attributes"].items()}
+            a["indices"] = values(doc, binary, p["indices"]).reshape(-1)
             out.append(a)
     return out
 
@@ -38,8 +38,8 @@ def test_strip_keeps_geometry_skin_and_drops_the_rest():
     assert [s["joints"] for s in after[0]["skins"]] == [s["joints"] for s in before[0]["skins"]]
     for s0, s1 in zip(before[0]["skins"], after[0]["skins"]):
         if "inverseBindMatrices" in s0:
-            np.testing.assert_array_equal(read_accessor(*before, s0["inverseBindMatrices"]),
-                                          read_accessor(*after, s1["inverseBindMatrices"]))
+            np.testing.assert_array_equal(values(*before, s0["inverseBindMatrices"]),
+                                          values(*after, s1["inverseBindMatrices"]))
     for p0, p1 in zip(_prim_arrays(*before), _prim_arrays(*after)):
         assert set(p1) == {"POSITION", "JOINTS_0", "WEIGHTS_0", "indices"} & set(p0) | {"indices"}
         np.testing.assert_array_equal(p0["POSITION"], p1["POSITION"])

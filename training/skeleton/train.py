@@ -92,11 +92,16 @@ def build_config(a) -> ModelConfig:
     return cfg
 
 
+def cosine_lr(a, prog: float) -> float:
+    """From `a.lr` down to `a.min_lr_ratio` of it along half a cosine, `prog` from 0 to 1."""
+    prog = min(1.0, prog)
+    return a.lr * (a.min_lr_ratio + (1 - a.min_lr_ratio) * 0.5 * (1 + math.cos(math.pi * prog)))
+
+
 def lr_at(step, a):
     if step < a.warmup:
         return a.lr * (step + 1) / a.warmup
-    prog = min(1.0, (step - a.warmup) / max(1, a.steps - a.warmup))
-    return a.lr * (a.min_lr_ratio + (1 - a.min_lr_ratio) * 0.5 * (1 + math.cos(math.pi * prog)))
+    return cosine_lr(a, (step - a.warmup) / max(1, a.steps - a.warmup))
 
 
 def make_optimizer(model, a):

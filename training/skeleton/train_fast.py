@@ -17,7 +17,6 @@ Differences from `train.py`, each because the budget is time, not steps:
 from __future__ import annotations
 
 import argparse
-import math
 import os
 import sys
 import time
@@ -28,7 +27,7 @@ import torch
 from .data import SkeletonDataset
 from .init_from_onnx import config_of, load_onnx_weights
 from .model import CLS_BASE, CLS_NONE, PAD, VOCAB_SIZE, ModelConfig, SkeletonModel, loss_fn
-from .train import add_shared_args, build_config, cpu_has_native_bf16, make_optimizer
+from .train import add_shared_args, build_config, cosine_lr, cpu_has_native_bf16, make_optimizer, save_atomic
 
 
 def parse_args(argv=None):
@@ -74,6 +73,11 @@ class DeviceSampler:
         self.gen.manual_seed(seed)
         self.queue = []
         self.n_points = min(s.points.shape[1] for s in sets)
+        # One token width for every set, so a batch mixing them slices instead of padding.
+        width = max(s.ids.shape[1] for s in sets)
+        for s in sets:
+            if s.ids.shape[1] < width:
+                s.ids = torch.nn.functional.pad(s.ids, (0, width - s.ids.shape[1]), value=PAD)
 
     def _refill(self):
         n = self.batch * self.pool
@@ -86,25 +90,25 @@ class DeviceSampler:
                 picks.append((torch.full((m,), k, device=self.device), idx, s.lens[idx]))
         ds_of = torch.cat([p[0] for p in picks])
         idx = torch.cat([p[1] for p in picks])
-        order = torch.argsort(torch.cat([p[2] for p in picks]))
+        lens, order = torch.sort(torch.cat([p[2] for p in picks]))
         ds_of, idx = ds_of[order], idx[order]
-        chunks = list(zip(ds_of.split(self.batch), idx.split(self.batch)))
+        # Sorted by length, so a batch's longest item is its last: read once per refill.
+        longest = torch.stack([c[-1] for c in lens.split(self.batch)]).tolist()
+        chunks = list(zip(ds_of.split(self.batch), idx.split(self.batch), longest))
         perm = torch.randperm(len(chunks), generator=self.gen, device=self.device).tolist()
         self.queue = [chunks[i] for i in perm]
 
     def next(self, n_points: int, cls_drop: float):
         if not self.queue:
             self._refill()
-        ds_of, idx = self.queue.pop()
-        t = int(max(int(self.sets[k].lens[idx[ds_of == k]].max()) for k in ds_of.unique().tolist()))
+        ds_of, idx, t = self.queue.pop()
         pts = torch.empty((len(idx), self.n_points, 6), device=self.device, dtype=torch.float16)
-        ids = torch.full((len(idx), t), PAD, device=self.device, dtype=torch.long)
+        ids = torch.empty((len(idx), t), device=self.device, dtype=torch.long)
         for k in ds_of.unique().tolist():
             sel = (ds_of == k).nonzero().squeeze(1)
             s = self.sets[k]
             pts[sel] = s.points[idx[sel]]
-            ids[sel] = s.ids[idx[sel], :t] if s.ids.shape[1] >= t else torch.nn.functional.pad(
-                s.ids[idx[sel]], (0, t - s.ids.shape[1]), value=PAD)
+            ids[sel] = s.ids[idx[sel], :t]
         n_points = min(n_points, self.n_points)
         if n_points < self.n_points:
             # A random subset without replacement per item, in surface-sample order.
@@ -123,8 +127,7 @@ def schedule(frac: float, a) -> tuple[float, float]:
     if frac < a.warmup_frac:
         lr = a.lr * max(frac / a.warmup_frac, 1e-3)
     else:
-        prog = min(1.0, (frac - a.warmup_frac) / max(1e-9, 1 - a.warmup_frac))
-        lr = a.lr * (a.min_lr_ratio + (1 - a.min_lr_ratio) * 0.5 * (1 + math.cos(math.pi * prog)))
+        lr = cosine_lr(a, (frac - a.warmup_frac) / max(1e-9, 1 - a.warmup_frac))
     end = a.coord_sigma if a.coord_sigma_end is None else a.coord_sigma_end
     return lr, a.coord_sigma + (end - a.coord_sigma) * min(1.0, frac)
 
@@ -153,10 +156,9 @@ def main(argv=None):
     log.write("step,elapsed_s,loss,lr,coord_sigma,grad_norm,items_per_s\n")
 
     def save(step):
-        tmp = os.path.join(a.out, "last.pt.tmp")
         state = {k: v.detach().float().cpu() for k, v in model.state_dict().items()}
-        torch.save({"config": cfg.to_dict(), "model": state, "step": step, "args": vars(a)}, tmp)
-        os.replace(tmp, os.path.join(a.out, "last.pt"))
+        save_atomic({"config": cfg.to_dict(), "model": state, "step": step, "args": vars(a)},
+                    os.path.join(a.out, "last.pt"))
 
     rng = np.random.default_rng(a.seed)
     budget = a.minutes * 60.0

@@ -28,7 +28,7 @@ COMPONENT = {
     np.dtype(np.float32): 5126,
 }
 DTYPE = {v: k for k, v in COMPONENT.items()}
-TYPE_COMPONENTS = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4, "MAT4": 16}
+TYPE_COMPONENTS = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4, "MAT2": 4, "MAT3": 9, "MAT4": 16}
 
 
 class GltfBuilder:
@@ -110,13 +110,35 @@ def read_glb(data: bytes) -> tuple[dict, bytes]:
 
 
 def read_accessor(doc: dict, binary: bytes, index: int) -> np.ndarray:
+    """An accessor's stored values (integers stay integers), strided views and sparse
+    substitution applied, so files from other tools read too (`skeleton/strip_glb.py`)."""
     acc = doc["accessors"][index]
-    view = doc["bufferViews"][acc["bufferView"]]
     dt = DTYPE[acc["componentType"]]
     n = TYPE_COMPONENTS[acc["type"]]
-    start = view.get("byteOffset", 0) + acc.get("byteOffset", 0)
-    arr = np.frombuffer(binary, dtype=dt, count=acc["count"] * n, offset=start)
-    return arr.reshape(acc["count"], n) if n > 1 else arr
+    count = acc["count"]
+    if "bufferView" in acc:
+        view = doc["bufferViews"][acc["bufferView"]]
+        start = view.get("byteOffset", 0) + acc.get("byteOffset", 0)
+        elem = dt.itemsize * n
+        stride = view.get("byteStride") or elem
+        if stride == elem:
+            arr = np.frombuffer(binary, dtype=dt, count=count * n, offset=start).reshape(count, n)
+        else:
+            raw = np.frombuffer(binary, dtype=np.uint8, count=(count - 1) * stride + elem, offset=start)
+            rows = np.lib.stride_tricks.as_strided(raw, shape=(count, elem), strides=(stride, 1))
+            arr = np.ascontiguousarray(rows).view(dt).reshape(count, n)
+    else:
+        arr = np.zeros((count, n), dtype=dt)
+    if "sparse" in acc:
+        sp = acc["sparse"]
+        iv, vv = doc["bufferViews"][sp["indices"]["bufferView"]], doc["bufferViews"][sp["values"]["bufferView"]]
+        idx = np.frombuffer(binary, dtype=DTYPE[sp["indices"]["componentType"]], count=sp["count"],
+                            offset=iv.get("byteOffset", 0) + sp["indices"].get("byteOffset", 0))
+        vals = np.frombuffer(binary, dtype=dt, count=sp["count"] * n,
+                             offset=vv.get("byteOffset", 0) + sp["values"].get("byteOffset", 0))
+        arr = arr.copy()
+        arr[idx] = vals.reshape(-1, n)
+    return arr if n > 1 else arr.reshape(-1)
 
 
 def quat_matrix(q) -> np.ndarray:
