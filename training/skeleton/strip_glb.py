@@ -4,7 +4,7 @@
 
 It reads and writes with `training.synth.glb`, the synthetic generator's GLB module.
 Kept: positions, joints, weights (as normalised uint16), indices, nodes and skins. Dropped: materials, textures, normals (samples take face normals), UVs, colours,
-animations and morph targets. The 140 `train` rigs go from 63 MB to 18 MB (5.4 MB
+animations and morph targets. The 140 `train` rigs go from 53 MB to 18.6 MB (5.4 MB
 gzipped), so they fit the device tool's 64 MiB working tree; `rigserve dataset` on the
 copies gives the same tokens and, but for the weights' rounding, the same samples.
 The copies are third-party data: they stay out of git like the originals.
