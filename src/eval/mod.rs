@@ -9,7 +9,7 @@ use crate::mesh::{self, Limits};
 use crate::rig::groundtruth::{self, GroundTruth};
 use crate::rig::metrics::{score_skeleton, score_skin, Frame, SkeletonScores, SkinScores};
 use crate::rig::nearest::PointGrid;
-use crate::rig::SkinWeights;
+use crate::rig::{Skeleton, SkinWeights};
 use serde::Serialize;
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -91,6 +91,9 @@ pub struct ModelReport {
     pub candidates: Vec<CandidateReport>,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub chosen: Option<usize>,
+    /// How much the model's candidates disagree ([`crate::predict::spread`]).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub spread: Option<f32>,
 }
 
 /// A candidate as the predictor saw it, and how it scores against the artist's skeleton.
@@ -99,6 +102,8 @@ pub struct CandidateReport {
     #[serde(flatten)]
     pub candidate: crate::predict::Candidate,
     pub cd_j2j: Option<f32>,
+    /// CD-B2B the same way (before a model skeleton's joints are pulled inside).
+    pub cd_b2b: Option<f32>,
 }
 
 impl ModelReport {
@@ -115,6 +120,7 @@ impl ModelReport {
             skin: None,
             candidates: Vec::new(),
             chosen: None,
+            spread: None,
         }
     }
 }
@@ -371,17 +377,25 @@ pub fn eval_model_skeleton(
                 report.valid = pred.skeleton.validate(cfg.max_bones).is_ok();
                 report.skeleton = Some(score_skeleton(&pred.skeleton, &gt.skeleton, &frame));
                 report.chosen = Some(pred.chosen);
+                report.spread = pred.spread;
                 report.candidates = pred
                     .candidates
                     .iter()
                     .zip(&pred.unit_skeletons)
-                    .map(|(c, s)| CandidateReport {
-                        candidate: c.clone(),
-                        cd_j2j: s.as_ref().and_then(|s| {
+                    .map(|(c, s)| {
+                        let s = s.as_ref().map(|s| {
                             let mut s = s.clone();
                             s.map_points(|p| pred.normalization.invert(p));
-                            crate::rig::metrics::cd_j2j(&s, &gt.skeleton, &frame)
-                        }),
+                            s
+                        });
+                        let metric = |f: fn(&Skeleton, &Skeleton, &Frame) -> Option<f32>| {
+                            s.as_ref().and_then(|s| f(s, &gt.skeleton, &frame))
+                        };
+                        CandidateReport {
+                            candidate: c.clone(),
+                            cd_j2j: metric(crate::rig::metrics::cd_j2j),
+                            cd_b2b: metric(crate::rig::metrics::cd_b2b),
+                        }
                     })
                     .collect();
             }

@@ -182,10 +182,51 @@ impl SurfaceModel {
     }
 }
 
+/// How much candidates disagree with one another: the mean symmetric joint chamfer
+/// distance (unit frame) over their pairs; `None` with fewer than two. Not part of the
+/// cost: a choice rule that took the library rig whenever the model's four candidates
+/// disagreed was measured and not shipped (MODEL_CARD.md, "The model's own disagreement").
+pub fn spread(skeletons: &[&Skeleton]) -> Option<f32> {
+    let mut sum = 0.0f64;
+    let mut pairs = 0usize;
+    for (i, a) in skeletons.iter().enumerate() {
+        for b in &skeletons[i + 1..] {
+            if let Some(d) = crate::rig::metrics::cd_j2j(a, b, &crate::rig::metrics::Frame::UNIT) {
+                sum += d as f64;
+                pairs += 1;
+            }
+        }
+    }
+    (pairs > 0).then(|| (sum / pairs as f64) as f32)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
     use crate::rig::Bone;
+
+    #[test]
+    fn spread_is_the_mean_pairwise_joint_distance() {
+        let chain = |dx: f32| Skeleton {
+            bones: vec![
+                Bone::new("a", None, Vec3::new(dx, 0.0, 0.0), Vec3::Y),
+                Bone::new("b", Some(0), Vec3::new(dx, 1.0, 0.0), Vec3::Y * 2.0),
+            ],
+            ..Skeleton::default()
+        };
+        let (a, b, c) = (chain(0.0), chain(0.2), chain(0.4));
+        assert_eq!(
+            spread(&[&a]),
+            None,
+            "one candidate has nothing to disagree with"
+        );
+        assert_eq!(spread(&[&a, &a]), Some(0.0));
+        let ab = crate::rig::metrics::cd_j2j(&a, &b, &crate::rig::metrics::Frame::UNIT).unwrap();
+        assert!(ab > 0.0);
+        // Pairs a-b and b-c are one shift apart, a-c two: the mean is 4/3 of one shift.
+        let d = spread(&[&a, &b, &c]).unwrap();
+        assert!((d - ab * 4.0 / 3.0).abs() < 1e-5, "{d} vs {ab}");
+    }
 
     fn cube() -> Mesh {
         crate::mesh::box_mesh(Vec3::splat(-1.0), Vec3::ONE)

@@ -9,9 +9,10 @@ model trained without a quarter of `train` (the `hold` rows) makes those a secon
 unseen set to choose on: `rigserve eval --dataset OUT --split hold --models HELD_OUT …`.
 
 Writes OUT/manifest.tsv (the `train` rows only, a quarter of each category relabelled
-`hold`: per category sorted by file name, every fourth from the third) and a symbolic
+`hold`: per category sorted by file name, every fourth from the third; `--part K` starts
+from the (K+1)-th instead, so parts 0-3 are four disjoint held-out quarters) and a symbolic
 link per file to the rigs folder, so the third-party files are never copied. The split
-is a pure function of the manifest, so every session draws the same one.
+is a pure function of the manifest and the part, so every session draws the same one.
 """
 
 from __future__ import annotations
@@ -22,26 +23,29 @@ import sys
 from collections import Counter, defaultdict
 
 
-def hold_rows(rows: list[dict]) -> set[str]:
-    """Names of the `train` rows that go to `hold`."""
+def hold_rows(rows: list[dict], part: int = 2) -> set[str]:
+    """Names of the `train` rows that go to `hold`: per category, every fourth from index
+    `part` (2 is the split the first held-out models used)."""
     by_cat = defaultdict(list)
     for r in rows:
         if r["split"] == "train":
             by_cat[r["category"]].append(r["file"])
-    return {f for files in by_cat.values() for k, f in enumerate(sorted(files)) if k % 4 == 2}
+    return {f for files in by_cat.values() for k, f in enumerate(sorted(files)) if k % 4 == part}
 
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--rigs", default="../shared/rigs", help="folder with manifest.tsv and the GLBs")
     ap.add_argument("--out", required=True)
+    ap.add_argument("--part", type=int, default=2, choices=range(4),
+                    help="which quarter of each category to hold out (default 2, the first split)")
     a = ap.parse_args(argv)
     src = os.path.abspath(a.rigs)
     with open(os.path.join(src, "manifest.tsv"), encoding="utf-8") as f:
         lines = [l.rstrip("\n").split("\t") for l in f if l.strip()]
     header, body = lines[0], lines[1:]
     rows = [dict(zip(header, r)) for r in body]
-    hold = hold_rows(rows)
+    hold = hold_rows(rows, a.part)
     os.makedirs(a.out, exist_ok=True)
     split_col = header.index("split")
     out = ["\t".join(header)]

@@ -17,6 +17,14 @@ class HoldoutTest(unittest.TestCase):
         self.assertEqual(hold_rows(rows), {"h02.glb", "h06.glb"})
         self.assertEqual(hold_rows(list(reversed(rows))), {"h02.glb", "h06.glb"})
 
+    def test_the_four_parts_are_disjoint_and_cover_train(self):
+        rows = [{"file": f"{c}{i:02d}.glb", "split": "train", "category": c}
+                for c in ("a", "b") for i in range(7)]
+        parts = [hold_rows(rows, k) for k in range(4)]
+        self.assertEqual(parts[0], {"a00.glb", "a04.glb", "b00.glb", "b04.glb"})
+        self.assertEqual(set().union(*parts), {r["file"] for r in rows})
+        self.assertEqual(sum(len(p) for p in parts), len(rows))
+
     def test_writes_links_and_only_train_rows(self):
         with tempfile.TemporaryDirectory() as d:
             rigs, out = os.path.join(d, "rigs"), os.path.join(d, "out")
