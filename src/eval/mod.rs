@@ -91,7 +91,7 @@ pub struct ModelReport {
     pub candidates: Vec<CandidateReport>,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub chosen: Option<usize>,
-    /// How much the model's candidates disagree ([`crate::predict::spread`]).
+    /// How much the model's candidates disagree ([`crate::predict::score::spread`]).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub spread: Option<f32>,
 }
