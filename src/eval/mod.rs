@@ -377,7 +377,15 @@ pub fn eval_model_skeleton(
                 report.valid = pred.skeleton.validate(cfg.max_bones).is_ok();
                 report.skeleton = Some(score_skeleton(&pred.skeleton, &gt.skeleton, &frame));
                 report.chosen = Some(pred.chosen);
-                report.spread = pred.spread;
+                // Only the report needs it, so the service never computes it.
+                let model_skeletons: Vec<&Skeleton> = pred
+                    .candidates
+                    .iter()
+                    .zip(&pred.unit_skeletons)
+                    .filter(|(c, _)| matches!(c.origin, crate::predict::Origin::Model { .. }))
+                    .filter_map(|(_, s)| s.as_ref())
+                    .collect();
+                report.spread = crate::predict::score::spread(&model_skeletons);
                 report.candidates = pred
                     .candidates
                     .iter()

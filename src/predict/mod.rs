@@ -248,9 +248,6 @@ pub struct Prediction {
     /// Each candidate's skeleton in the unit frame (None where it has none).
     pub unit_skeletons: Vec<Option<Skeleton>>,
     pub normalization: Normalization,
-    /// [`score::spread`] of the model's candidates (None when fewer than two were
-    /// decoded): reported by `eval`, to study when the model is unsure of a mesh.
-    pub spread: Option<f32>,
 }
 
 /// Predicts a skeleton for `mesh`, continuing `keep` when given.
@@ -327,13 +324,6 @@ pub fn predict_from_samples(
         });
         skeletons.push(Some(skel));
     }
-    let model_skeletons: Vec<&Skeleton> = candidates
-        .iter()
-        .zip(&skeletons)
-        .filter(|(c, _)| matches!(c.origin, Origin::Model { .. }))
-        .filter_map(|(_, s)| s.as_ref())
-        .collect();
-    let spread = score::spread(&model_skeletons);
     // A trusted library rig is the only candidate there is.
     let chosen = if trusted {
         Some(0)
@@ -375,7 +365,6 @@ pub fn predict_from_samples(
         candidates,
         unit_skeletons: skeletons,
         normalization: norm,
-        spread,
     })
 }
 
