@@ -1011,3 +1011,81 @@ fn artist_skeletons_score_well() {
     assert!(inside > 0.8, "{inside}");
     assert!(better as f32 >= 0.9 * n as f32, "{better} of {n}");
 }
+
+/// Every row of a teacher-forced run is the next-token distribution the recompute path
+/// gives for that prefix: what refinement reads is what sampling would have read.
+#[test]
+fn teacher_forced_rows_match_the_recompute() {
+    let Some(rt) = runtime() else { return };
+    let b = backend(&rt, true);
+    let pts = random_points(5, 2048);
+    let seq = generated_prefix(&b, &pts, 30, 9);
+    let all = b.teacher_forced(&pts, seq.clone()).unwrap();
+    assert_eq!(all.dim(), (seq.len(), b.info().vocab_size));
+    let mut m = load(&rt, &fixture());
+    let prefix = m.encode(&to_array(&[&pts])).unwrap();
+    for t in [1, 12, seq.len() - 1] {
+        let full = m.forward_full(&prefix, &[&seq[..=t]]).unwrap();
+        let diff = full
+            .row(0)
+            .iter()
+            .zip(all.row(t))
+            .map(|(x, y)| (x - y).abs())
+            .fold(0f32, f32::max);
+        assert!(diff <= 1e-4, "position {t}: max logit difference {diff}");
+    }
+    // Out-of-vocabulary tokens are refused before they reach the thread.
+    assert!(matches!(
+        b.teacher_forced(&pts, vec![BOS, 9999]),
+        Err(InferError::InvalidRequest(_))
+    ));
+}
+
+/// Refinement moves joints, never the tree, and never further than its window (plus the
+/// half bin a joint may sit off its bin's centre); a window of 0 moves nothing.
+#[test]
+fn refinement_keeps_the_tree_and_its_window() {
+    use rigserve::predict::mesh_samples;
+    use rigserve::predict::refine::{refine, Refine};
+    let Some(rt) = runtime() else { return };
+    let b = backend(&rt, true);
+    let asset = mesh::load(
+        box_obj(Vec3::new(0.6, 2.0, 0.4)).as_bytes(),
+        &Limits::default(),
+    )
+    .unwrap();
+    let samples = mesh_samples(&asset.mesh, 2048, 1).unwrap();
+    let mut skel = keep_chain();
+    skel.map_points(|p| samples.normalization.apply(p));
+    skel.bones.push(Bone::new(
+        "side",
+        Some(1),
+        Vec3::new(0.3, 0.1, 0.05),
+        Vec3::ZERO,
+    ));
+    skel.infer_tails();
+    let same = refine(&b, &samples, &skel, None, Refine { window: 0 }).unwrap();
+    assert_eq!(same, skel);
+    let bin = 2.0 / 256.0;
+    let mut moved = 0;
+    for w in [2u32, 8] {
+        let r = refine(
+            &b,
+            &samples,
+            &skel,
+            Some("robot_prop"),
+            Refine { window: w },
+        )
+        .unwrap();
+        assert_eq!(r.len(), skel.len());
+        for (x, y) in r.bones.iter().zip(&skel.bones) {
+            assert_eq!((&x.name, x.parent, x.spring), (&y.name, y.parent, y.spring));
+            let d = (x.head - y.head).abs().max_element();
+            assert!(d <= (w as f32 + 0.5) * bin + 1e-5, "window {w}: moved {d}");
+            moved += (d > 0.0) as usize;
+        }
+        // A bone with one child still ends at it.
+        assert_eq!(r.bones[0].tail, r.bones[1].head);
+    }
+    assert!(moved > 0, "the model moved no joint");
+}

@@ -9,6 +9,7 @@ use rigserve::infer::{
 };
 use rigserve::mesh;
 use rigserve::predict::library::Library;
+use rigserve::predict::refine::Refine;
 use rigserve::predict::{predict_skeleton, Origin, PredictConfig};
 use rigserve::rig::groundtruth::extract;
 use rigserve::rig::skin::{skin_with_timed, CandidateScorer, SkinConfig};
@@ -119,6 +120,13 @@ pub struct DecodeArgs {
     /// Shape distance under which the nearest library entry is taken over the model.
     #[arg(long, default_value_t = rigserve::predict::DEFAULT_LIBRARY_TRUST)]
     pub library_trust: f32,
+    /// Let the model move library rigs' joints by up to this many bins (0: off; measured
+    /// and left off, MODEL_CARD.md "The model moves the joints").
+    #[arg(long, default_value_t = 0)]
+    pub refine_library: u32,
+    /// Let the model move its own candidates' joints by up to this many bins (0: off).
+    #[arg(long, default_value_t = 0)]
+    pub refine_model: u32,
 }
 
 impl DecodeArgs {
@@ -136,6 +144,12 @@ impl DecodeArgs {
             category,
             library_candidates: self.library_candidates,
             library_trust: self.library_trust,
+            refine_library: (self.refine_library > 0).then_some(Refine {
+                window: self.refine_library,
+            }),
+            refine_model: (self.refine_model > 0).then_some(Refine {
+                window: self.refine_model,
+            }),
             ..PredictConfig::default()
         }
     }

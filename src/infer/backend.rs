@@ -302,6 +302,12 @@ pub(super) struct Job {
 
 enum Command {
     Submit(Vec<Job>),
+    /// Logits at every position of a given sequence ([`Backend::teacher_forced`]).
+    TeacherForced {
+        prefix: Arc<Array2<f32>>,
+        tokens: Vec<u32>,
+        reply: Sender<Result<Array2<f32>, InferError>>,
+    },
 }
 
 /// Handle to the inference thread (or threads: see [`Backend::with_lanes`]). `Send +
@@ -487,6 +493,62 @@ impl Backend {
         Ok(pending)
     }
 
+    /// Logits (T, V) at every position of `tokens` (which must start with `<bos>` and a
+    /// class token) for the mesh `points`: row `t` is the model's distribution of token
+    /// `t + 1`. Runs on an inference thread between decode steps.
+    pub fn teacher_forced(
+        &self,
+        points: &[[f32; 6]],
+        tokens: Vec<u32>,
+    ) -> Result<Array2<f32>, InferError> {
+        if points.is_empty() || points.iter().flatten().any(|v| !v.is_finite()) {
+            return Err(InferError::InvalidRequest(
+                "points are empty or hold a non-finite value".into(),
+            ));
+        }
+        if let Some(&t) = tokens.iter().find(|&&t| t as usize >= self.info.vocab_size) {
+            return Err(InferError::InvalidRequest(format!(
+                "token {t} is outside this model's vocabulary of {}",
+                self.info.vocab_size
+            )));
+        }
+        let prefix = self.encode_points(points)?;
+        let (reply, rx) = channel();
+        let lane = self
+            .lanes
+            .iter()
+            .min_by_key(|l| l.load.load(Ordering::Relaxed))
+            .expect("a backend has a lane");
+        let tx = lane.tx.as_ref().ok_or(InferError::BackendGone)?;
+        tx.send(Command::TeacherForced {
+            prefix,
+            tokens,
+            reply,
+        })
+        .map_err(|_| InferError::BackendGone)?;
+        rx.recv().map_err(|_| InferError::BackendGone)?
+    }
+
+    /// The encoder's output (L, d) for one point set, computed on this thread.
+    fn encode_points(&self, pts: &[[f32; 6]]) -> Result<Arc<Array2<f32>>, InferError> {
+        let mut x = Array3::<f32>::zeros((1, pts.len(), 6));
+        for (k, p) in pts.iter().enumerate() {
+            for (c, &v) in p.iter().enumerate() {
+                x[[0, k, c]] = v;
+            }
+        }
+        let t = Instant::now();
+        let out = self
+            .encoder
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .encode(&x)?;
+        Metrics::add_time(&self.metrics.encode_ns, t);
+        Metrics::add(&self.metrics.encode_calls, 1);
+        Metrics::add(&self.metrics.encode_rows, 1);
+        Ok(Arc::new(out.index_axis(Axis(0), 0).to_owned()))
+    }
+
     /// Encodes each distinct point set of `jobs` on this thread (candidates of one mesh
     /// share one set, so one call).
     fn encode_here(&self, jobs: &mut [Job]) -> Result<(), InferError> {
@@ -495,22 +557,7 @@ impl Backend {
                 continue;
             }
             let pts = jobs[i].points.clone();
-            let mut x = Array3::<f32>::zeros((1, pts.len(), 6));
-            for (k, p) in pts.iter().enumerate() {
-                for (c, &v) in p.iter().enumerate() {
-                    x[[0, k, c]] = v;
-                }
-            }
-            let t = Instant::now();
-            let out = self
-                .encoder
-                .lock()
-                .unwrap_or_else(|e| e.into_inner())
-                .encode(&x)?;
-            Metrics::add_time(&self.metrics.encode_ns, t);
-            Metrics::add(&self.metrics.encode_calls, 1);
-            Metrics::add(&self.metrics.encode_rows, 1);
-            let prefix = Arc::new(out.index_axis(Axis(0), 0).to_owned());
+            let prefix = self.encode_points(&pts)?;
             for j in jobs[i..]
                 .iter_mut()
                 .filter(|j| Arc::ptr_eq(&j.points, &pts))
@@ -726,6 +773,14 @@ impl Worker {
     fn take(&mut self, cmd: Command) {
         match cmd {
             Command::Submit(jobs) => self.waiting.extend(jobs),
+            // Inline: one decoder call, no cache kept, so the running batch only waits.
+            Command::TeacherForced {
+                prefix,
+                tokens,
+                reply,
+            } => {
+                let _ = reply.send(self.model.teacher_forced(prefix.view(), &tokens));
+            }
         }
         self.gauges();
     }

@@ -717,9 +717,10 @@ impl SkeletonModel {
             pos,
             mask.view(),
             |_| Ok(TensorRef::from_array_view(empty_past.view())?.into()),
+            usize::MAX,
             |new| KvCache::from_new(new, mask.clone(), next_pos),
         )?;
-        Ok((logits, cache))
+        Ok((last_row(logits), cache))
     }
 
     /// One token per row, and every row still inside the position table.
@@ -764,12 +765,13 @@ impl SkeletonModel {
                 pos,
                 mask.view(),
                 |i| Ok(TensorRef::from_array_view(past.tensor(i))?.into()),
+                usize::MAX,
                 |new| Ok(new.iter().map(|a| a.to_owned()).collect::<Vec<_>>()),
             )?
         };
         let views: Vec<ArrayView4<f32>> = new.iter().map(|a| a.view()).collect();
         cache.push(&views)?;
-        Ok(logits)
+        Ok(last_row(logits))
     }
 
     /// One ragged step (`decoder_step.onnx`): appends `tokens` (one per live row) and
@@ -882,8 +884,45 @@ impl SkeletonModel {
         self.prefill(prefixes, seqs).map(|(logits, _)| logits)
     }
 
+    /// Logits at every position of one whole sequence (T, V): row `t` is the model's
+    /// distribution of token `t + 1` given tokens `0..=t` and the encoder's `prefix` (L, d).
+    /// What a sequence that was not sampled (a library rig's tokens) is scored and refined by.
+    pub fn teacher_forced(
+        &mut self,
+        prefix: ArrayView2<f32>,
+        seq: &[u32],
+    ) -> Result<Array2<f32>, InferError> {
+        let info = &self.info;
+        let (l, t) = (info.n_latents, seq.len());
+        if prefix.dim() != (l, info.d_model) || t == 0 || t > info.max_tokens {
+            return Err(InferError::InvalidRequest(format!(
+                "teacher-forced run of {t} tokens with a prefix of shape {:?}",
+                prefix.dim()
+            )));
+        }
+        let ids =
+            Array2::from_shape_vec((1, t), seq.iter().map(|&x| x as i64).collect()).expect("1×t");
+        let pos = Array2::from_shape_fn((1, l + t), |(_, k)| k as i64);
+        let mask = Array2::<i64>::ones((1, l + t));
+        let empty_past = Array4::<f32>::zeros((1, info.n_heads, 0, info.head_dim));
+        let prefix = prefix.insert_axis(Axis(0));
+        let prefix_in =
+            TensorRef::from_array_view(prefix).map_err(|e| InferError::run("decoder input", e))?;
+        let (logits, ()) = self.run_decoder(
+            ids,
+            prefix_in.into(),
+            pos,
+            mask.view(),
+            |_| Ok(TensorRef::from_array_view(empty_past.view())?.into()),
+            0,
+            |_| Ok(()),
+        )?;
+        Ok(logits.index_axis_move(Axis(0), 0))
+    }
+
     /// Runs the decoder and hands the new keys and values (one (B, H, P + T, dh) view per
-    /// cache tensor, checked) to `take` while the outputs are alive.
+    /// cache tensor, checked) to `take` while the outputs are alive. Returns the logits of
+    /// positions `from..T` (the last one when `from` is past it).
     fn run_decoder<'v, R>(
         &mut self,
         ids: Array2<i64>,
@@ -891,8 +930,9 @@ impl SkeletonModel {
         pos: Array2<i64>,
         mask: ArrayView2<'v, i64>,
         past: impl Fn(usize) -> ort::Result<SessionInputValue<'v>>,
+        from: usize,
         take: impl FnOnce(&[ArrayView4<f32>]) -> Result<R, InferError>,
-    ) -> Result<(Array2<f32>, R), InferError> {
+    ) -> Result<(Array3<f32>, R), InferError> {
         let (b, t) = ids.dim();
         let new_len = pos.dim().1;
         let input = |e: ort::Error| InferError::run("decoder input", e);
@@ -929,8 +969,11 @@ impl SkeletonModel {
                 expected: format!("[{b}, {t}, {v}]"),
             });
         }
-        let last = logits.index_axis(Axis(1), t - 1).to_owned();
-        let last = last.into_dimensionality().expect("rank 2");
+        let kept = logits
+            .slice(ndarray::s![.., from.min(t - 1).., ..])
+            .to_owned()
+            .into_dimensionality::<ndarray::Ix3>()
+            .expect("rank 3");
         let want = [b, self.info.n_heads, new_len, self.info.head_dim];
         let mut new = Vec::with_capacity(self.new_names.len());
         for name in &self.new_names {
@@ -950,6 +993,12 @@ impl SkeletonModel {
             new.push(a.into_dimensionality::<Ix4>().expect("shape checked"));
         }
         let r = take(&new)?;
-        Ok((last, r))
+        Ok((kept, r))
     }
+}
+
+/// The last position's logits (B, V) of a decoder output (B, T, V).
+fn last_row(logits: Array3<f32>) -> Array2<f32> {
+    let t = logits.dim().1;
+    logits.index_axis_move(Axis(1), t - 1)
 }

@@ -8,6 +8,7 @@
 pub mod inside;
 mod lanes;
 pub mod library;
+pub mod refine;
 pub mod score;
 mod winding;
 
@@ -71,6 +72,10 @@ pub struct PredictConfig {
     /// Shape distance (box coordinates) under which the nearest library entry is taken
     /// over the model's candidates: the mesh is then a close relative of a rigged one.
     pub library_trust: f32,
+    /// Library rigs' joints moved by the model ([`refine`]); `None` leaves them as fitted.
+    pub refine_library: Option<refine::Refine>,
+    /// The model's own candidates' joints moved the same way, before they are scored.
+    pub refine_model: Option<refine::Refine>,
 }
 
 /// Sampling temperature of the candidates. Chosen per model on data the dev split never
@@ -101,6 +106,8 @@ impl Default for PredictConfig {
             library: None,
             library_candidates: DEFAULT_LIBRARY_CANDIDATES,
             library_trust: DEFAULT_LIBRARY_TRUST,
+            refine_library: None,
+            refine_model: None,
         }
     }
 }
@@ -314,7 +321,11 @@ pub fn predict_from_samples(
             &mut skeletons,
         )?;
     }
-    for (name, shape, skel) in borrowed {
+    for (name, shape, mut skel) in borrowed {
+        if let Some(how) = cfg.refine_library {
+            skel = refine::refine(backend, samples, &skel, cfg.category.as_deref(), how)?;
+            inside::pull_inside(&mut skel, samples);
+        }
         candidates.push(Candidate {
             origin: Origin::Library { name, shape },
             tokens: Vec::new(),
@@ -407,13 +418,17 @@ fn decode_candidates(
         if let Err(InferError::Canceled) = waited {
             return Err(InferError::Canceled.into());
         }
-        let (tokens, skel, error) = match waited {
+        let (tokens, mut skel, error) = match waited {
             Ok(g) => match detokenize(&g.tokens) {
                 Ok(s) => (g.tokens, Some(s), None),
                 Err(e) => (g.tokens, None, Some(e.to_string())),
             },
             Err(e) => (Vec::new(), None, Some(e.to_string())),
         };
+        if let (Some(how), Some(s)) = (cfg.refine_model, skel.as_mut()) {
+            let cat = s.category.clone();
+            *s = refine::refine(backend, samples, s, cat.as_deref(), how)?;
+        }
         let score = skel.as_ref().map(|s| samples.surface.score(s));
         candidates.push(Candidate {
             origin: Origin::Model { seed },
