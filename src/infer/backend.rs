@@ -477,11 +477,7 @@ impl Backend {
         }
         self.encode_here(&mut jobs)?;
         let n = jobs.len() as u64;
-        let lane = self
-            .lanes
-            .iter()
-            .min_by_key(|l| l.load.load(Ordering::Relaxed))
-            .expect("a backend has a lane");
+        let lane = self.least_loaded();
         let tx = lane.tx.as_ref().ok_or(InferError::BackendGone)?;
         tx.send(Command::Submit(jobs))
             .map_err(|_| InferError::BackendGone)?;
@@ -493,9 +489,17 @@ impl Backend {
         Ok(pending)
     }
 
-    /// Logits (T, V) at every position of `tokens` (which must start with `<bos>` and a
-    /// class token) for the mesh `points`: row `t` is the model's distribution of token
-    /// `t + 1`. Runs on an inference thread between decode steps.
+    /// The lane with the fewest rows outstanding.
+    fn least_loaded(&self) -> &Lane {
+        self.lanes
+            .iter()
+            .min_by_key(|l| l.load.load(Ordering::Relaxed))
+            .expect("a backend has a lane")
+    }
+
+    /// Logits (T, V) at every position of `tokens` (a skeleton's sequence: `<bos>`, a class
+    /// token, …) for the mesh `points`: row `t` is the model's distribution of token `t + 1`.
+    /// Runs on an inference thread between decode steps.
     pub fn teacher_forced(
         &self,
         points: &[[f32; 6]],
@@ -514,11 +518,7 @@ impl Backend {
         }
         let prefix = self.encode_points(points)?;
         let (reply, rx) = channel();
-        let lane = self
-            .lanes
-            .iter()
-            .min_by_key(|l| l.load.load(Ordering::Relaxed))
-            .expect("a backend has a lane");
+        let lane = self.least_loaded();
         let tx = lane.tx.as_ref().ok_or(InferError::BackendGone)?;
         tx.send(Command::TeacherForced {
             prefix,
