@@ -1020,7 +1020,8 @@ fn teacher_forced_rows_match_the_recompute() {
     let b = backend(&rt, true);
     let pts = random_points(5, 2048);
     let seq = generated_prefix(&b, &pts, 30, 9);
-    let all = b.teacher_forced(&pts, seq.clone()).unwrap();
+    let encoded = b.encode(&pts).unwrap();
+    let all = b.teacher_forced(&encoded, seq.clone()).unwrap();
     assert_eq!(all.dim(), (seq.len(), b.info().vocab_size));
     let mut m = load(&rt, &fixture());
     let prefix = m.encode(&to_array(&[&pts])).unwrap();
@@ -1036,7 +1037,7 @@ fn teacher_forced_rows_match_the_recompute() {
     }
     // Out-of-vocabulary tokens are refused before they reach the thread.
     assert!(matches!(
-        b.teacher_forced(&pts, vec![BOS, 9999]),
+        b.teacher_forced(&encoded, vec![BOS, 9999]),
         Err(InferError::InvalidRequest(_))
     ));
 }
@@ -1064,19 +1065,13 @@ fn refinement_keeps_the_tree_and_its_window() {
         Vec3::ZERO,
     ));
     skel.infer_tails();
-    let same = refine(&b, &samples, &skel, None, Refine { window: 0 }).unwrap();
+    let prefix = b.encode(&samples.points).unwrap();
+    let same = refine(&b, &prefix, &skel, None, Refine { window: 0 }).unwrap();
     assert_eq!(same, skel);
     let bin = 2.0 / 256.0;
     let mut moved = 0;
     for w in [2u32, 8] {
-        let r = refine(
-            &b,
-            &samples,
-            &skel,
-            Some("robot_prop"),
-            Refine { window: w },
-        )
-        .unwrap();
+        let r = refine(&b, &prefix, &skel, Some("robot_prop"), Refine { window: w }).unwrap();
         assert_eq!(r.len(), skel.len());
         for (x, y) in r.bones.iter().zip(&skel.bones) {
             assert_eq!((&x.name, x.parent, x.spring), (&y.name, y.parent, y.spring));

@@ -497,31 +497,38 @@ impl Backend {
             .expect("a backend has a lane")
     }
 
-    /// Logits (T, V) at every position of `tokens` (a skeleton's sequence: `<bos>`, a class
-    /// token, …) for the mesh `points`: row `t` is the model's distribution of token `t + 1`.
-    /// Runs on an inference thread between decode steps.
-    pub fn teacher_forced(
-        &self,
-        points: &[[f32; 6]],
-        tokens: Vec<u32>,
-    ) -> Result<Array2<f32>, InferError> {
+    /// The encoder's output (L, d) for the mesh `points`, computed on this thread: what
+    /// [`Backend::teacher_forced`] reads, encoded once per mesh however many sequences it
+    /// scores.
+    pub fn encode(&self, points: &[[f32; 6]]) -> Result<Arc<Array2<f32>>, InferError> {
         if points.is_empty() || points.iter().flatten().any(|v| !v.is_finite()) {
             return Err(InferError::InvalidRequest(
                 "points are empty or hold a non-finite value".into(),
             ));
         }
+        self.encode_points(points)
+    }
+
+    /// Logits (T, V) at every position of `tokens` (a skeleton's sequence: `<bos>`, a class
+    /// token, …) given the encoder's output `prefix` ([`Backend::encode`]): row `t` is the
+    /// model's distribution of token `t + 1`. Runs on an inference thread between decode
+    /// steps.
+    pub fn teacher_forced(
+        &self,
+        prefix: &Arc<Array2<f32>>,
+        tokens: Vec<u32>,
+    ) -> Result<Array2<f32>, InferError> {
         if let Some(&t) = tokens.iter().find(|&&t| t as usize >= self.info.vocab_size) {
             return Err(InferError::InvalidRequest(format!(
                 "token {t} is outside this model's vocabulary of {}",
                 self.info.vocab_size
             )));
         }
-        let prefix = self.encode_points(points)?;
         let (reply, rx) = channel();
         let lane = self.least_loaded();
         let tx = lane.tx.as_ref().ok_or(InferError::BackendGone)?;
         tx.send(Command::TeacherForced {
-            prefix,
+            prefix: prefix.clone(),
             tokens,
             reply,
         })

@@ -972,7 +972,7 @@ impl SkeletonModel {
         let kept = logits
             .slice(ndarray::s![.., from.min(t - 1).., ..])
             .to_owned()
-            .into_dimensionality::<ndarray::Ix3>()
+            .into_dimensionality::<Ix3>()
             .expect("rank 3");
         let want = [b, self.info.n_heads, new_len, self.info.head_dim];
         let mut new = Vec::with_capacity(self.new_names.len());

@@ -309,6 +309,11 @@ pub fn predict_from_samples(
     let trusted = borrowed
         .first()
         .is_some_and(|(_, shape, _)| *shape <= cfg.library_trust);
+    // Refinement reads the encoder's output for this mesh: encoded once, and only when asked.
+    let refining = cfg.refine_library.is_some() || cfg.refine_model.is_some();
+    let prefix = refining
+        .then(|| backend.encode(&samples.points))
+        .transpose()?;
     let mut candidates = Vec::new();
     let mut skeletons = Vec::new();
     if !trusted {
@@ -317,13 +322,14 @@ pub fn predict_from_samples(
             samples,
             cfg,
             prompt,
+            prefix.as_ref(),
             &mut candidates,
             &mut skeletons,
         )?;
     }
     for (name, shape, mut skel) in borrowed {
-        if let Some(how) = cfg.refine_library {
-            skel = refine::refine(backend, samples, &skel, cfg.category.as_deref(), how)?;
+        if let (Some(how), Some(p)) = (cfg.refine_library, &prefix) {
+            skel = refine::refine(backend, p, &skel, cfg.category.as_deref(), how)?;
             inside::pull_inside(&mut skel, samples);
         }
         candidates.push(Candidate {
@@ -385,6 +391,7 @@ fn decode_candidates(
     samples: &MeshSamples,
     cfg: &PredictConfig,
     prompt: Vec<u32>,
+    refine_prefix: Option<&Arc<ndarray::Array2<f32>>>,
     candidates: &mut Vec<Candidate>,
     skeletons: &mut Vec<Option<Skeleton>>,
 ) -> Result<(), PredictError> {
@@ -425,9 +432,9 @@ fn decode_candidates(
             },
             Err(e) => (Vec::new(), None, Some(e.to_string())),
         };
-        if let (Some(how), Some(s)) = (cfg.refine_model, skel.as_mut()) {
+        if let (Some(how), Some(p), Some(s)) = (cfg.refine_model, refine_prefix, skel.as_mut()) {
             let cat = s.category.clone();
-            *s = refine::refine(backend, samples, s, cat.as_deref(), how)?;
+            *s = refine::refine(backend, p, s, cat.as_deref(), how)?;
         }
         let score = skel.as_ref().map(|s| samples.surface.score(s));
         candidates.push(Candidate {

@@ -12,12 +12,13 @@
 //! model's candidates by 4 bins, better there and on the synthetic rigs, was worse on dev at
 //! all five seeds (MODEL_CARD.md, "The model moves the joints").
 
-use super::MeshSamples;
 use crate::infer::{Backend, InferError};
 use crate::rig::grammar::Grammar;
 use crate::rig::tokenizer::{dequantize, tokenize_with_order, COORD_BINS};
 use crate::rig::Skeleton;
 use glam::Vec3;
+use ndarray::Array2;
+use std::sync::Arc;
 
 /// How far the model may move a coordinate.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -26,13 +27,14 @@ pub struct Refine {
     pub window: u32,
 }
 
-/// `skel` (unit frame) with every joint the model can see moved; `category` is the class
+/// `skel` (unit frame) with every joint the model can see moved, given the encoder's output
+/// for the mesh (`prefix`, [`Backend::encode`]); `category` is the class
 /// token's, as the model's own candidates were prompted. Joints outside the unit cube (the
 /// tokenizer clamps them) keep their coordinates on that axis. Tails follow their bone's
 /// only child, or move with their head.
 pub fn refine(
     backend: &Backend,
-    samples: &MeshSamples,
+    prefix: &Arc<Array2<f32>>,
     skel: &Skeleton,
     category: Option<&str>,
     how: Refine,
@@ -48,7 +50,7 @@ pub fn refine(
     if at.len() != order.len() {
         return Ok(skel.clone());
     }
-    let logits = backend.teacher_forced(&samples.points, tokens.clone())?;
+    let logits = backend.teacher_forced(prefix, tokens.clone())?;
     let mut out = skel.clone();
     let old: Vec<Vec3> = skel.bones.iter().map(|b| b.head).collect();
     for (k, &p) in at.iter().enumerate() {
