@@ -315,14 +315,28 @@ fn batched_equals_alone() {
         let mut r = request(pts, prompt, 1000 + k);
         r.max_tokens = 60 + 25 * k as usize;
         r.max_bones = 5 + 4 * k as usize;
+        // Half the jobs run to their token budget whatever the model would end with, so
+        // they stay in the batch long enough for the others to join: how soon a model
+        // ends its skeleton on random points is not this test's business (v5 ends them
+        // in a few milliseconds, before the next submission).
+        if k % 2 == 1 {
+            r.ignore_eos = true;
+            r.max_bones = 64;
+        }
         reqs.push(r);
     }
     let alone: Vec<Generation> = reqs
         .iter()
         .map(|r| kv.generate(r.clone()).unwrap())
         .collect();
-    for g in &alone {
-        assert_eq!(g.finish, FinishReason::Eos);
+    for (r, g) in reqs.iter().zip(&alone) {
+        if r.ignore_eos {
+            // The grammar may still close the tree before the budget (it ends every
+            // sequence in time); what matters is that these jobs are long.
+            assert!(g.tokens.len() - g.prompt_len >= 50, "{g:?}");
+        } else {
+            assert_eq!(g.finish, FinishReason::Eos);
+        }
     }
 
     let dense = backend_with(&rt, true, false);
