@@ -310,8 +310,10 @@ pub fn predict_from_samples(
     let trusted = borrowed
         .first()
         .is_some_and(|(_, shape, _)| *shape <= cfg.library_trust);
-    // Refinement reads the encoder's output for this mesh: encoded once, and only when asked.
-    let refining = cfg.refine_library.is_some() || cfg.refine_model.is_some();
+    // Refinement reads the encoder's output for this mesh: encoded once, and only when a
+    // skeleton will be refined (a library rig, or model candidates that will be decoded).
+    let refining = (cfg.refine_library.is_some() && !borrowed.is_empty())
+        || (cfg.refine_model.is_some() && !trusted);
     let prefix = refining
         .then(|| backend.encode(&samples.points))
         .transpose()?;
