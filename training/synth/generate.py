@@ -1,10 +1,12 @@
 """Procedural rigged characters for training volume.
 
-    python3 -m training.synth.generate --out DIR --count N --seed S [--workers 2]
+    python3 -m training.synth.generate --out DIR --count N --seed S [--workers 2] [--balanced]
 
 Writes N GLB files and DIR/manifest.tsv (`file`, `split`, `category`), the layout
 `rigserve dataset --input DIR` reads. Character i depends only on (seed, i), so output is
 identical whatever the worker count, and a run can be extended or regenerated in parts.
+`--balanced` gives every category the same share (character i is category i mod 8), for
+fine-tuning legs aimed at the kinds the default mix draws least.
 """
 
 from __future__ import annotations
@@ -55,6 +57,11 @@ def pick_category(rng: np.random.Generator) -> str:
     return CATEGORIES[int(rng.choice(len(CATEGORIES), p=p / p.sum()))]
 
 
+def balanced_category(index: int) -> str:
+    """Round-robin over the categories: any run of 8 consecutive indices holds each once."""
+    return CATEGORIES[index % len(CATEGORIES)]
+
+
 def make_character(seed: int, index: int, category: str | None = None):
     """(glb bytes, category, info) for character `index` of `seed`."""
     rng = character_rng(seed, index)
@@ -88,10 +95,15 @@ def main(argv=None) -> int:
     ap.add_argument("--start", type=int, default=0, help="first character index (to extend a set)")
     ap.add_argument("--workers", type=int, default=2, help="processes (the build machine has 2 cores)")
     ap.add_argument("--category", choices=CATEGORIES, help="only this category (for inspection)")
+    ap.add_argument("--balanced", action="store_true",
+                    help="equal shares of every category instead of the default mix")
     ap.add_argument("--quiet", action="store_true")
     a = ap.parse_args(argv)
+    if a.balanced and a.category:
+        ap.error("--balanced and --category exclude each other")
     os.makedirs(a.out, exist_ok=True)
-    jobs = [(a.out, a.seed, i, a.category) for i in range(a.start, a.start + a.count)]
+    jobs = [(a.out, a.seed, i, balanced_category(i) if a.balanced else a.category)
+            for i in range(a.start, a.start + a.count)]
     t0 = time.time()
     rows = []
     if a.workers <= 1:

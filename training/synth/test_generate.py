@@ -250,6 +250,26 @@ def test_cli_writes_files_and_manifest():
         shutil.rmtree(d)
 
 
+def test_cli_balanced_gives_every_category_an_equal_share():
+    d = tempfile.mkdtemp(prefix="synth_test_")
+    try:
+        n = 2 * len(CATEGORIES)
+        assert main(["--out", d, "--count", str(n), "--seed", "9", "--start", "3",
+                     "--balanced", "--workers", "1", "--quiet"]) == 0
+        rows = [l.split("\t") for l in open(os.path.join(d, "manifest.tsv")).read().splitlines()[1:]]
+        cats = [r[2] for r in rows]
+        assert sorted(cats) == sorted(CATEGORIES * 2), cats
+        # The manifest's category is what the builder made: the file holds that rig.
+        assert make_character(9, 3, cats[0])[0] == open(os.path.join(d, rows[0][0]), "rb").read()
+        try:
+            main(["--out", d, "--count", "1", "--balanced", "--category", "humanoid"])
+            raise AssertionError("--balanced with --category was accepted")
+        except SystemExit as e:
+            assert e.code == 2
+    finally:
+        shutil.rmtree(d)
+
+
 def test_rigserve_reads_them():
     """When the rigserve binary is built, its loader must read every file and find the
     same joints. Skipped (passes) when it is not built."""
