@@ -84,8 +84,8 @@ pub struct PredictConfig {
 /// means on both sets). Flat logits want a cooler sampler and sharp ones a warmer: v3's
 /// two-bin Gaussian targets took 0.35, v4's one-bin targets take 0.5 again (MODEL_CARD.md,
 /// "Skeleton model v4"); v5, trained with targets narrowing from two bins to one, and v6 to
-/// v8, each the one before trained longer on one-bin targets, kept 0.5 without a grid
-/// (MODEL_CARD.md, "Skeleton model v5" to "v8").
+/// v9, each the one before trained longer on one-bin targets, kept 0.5 without a grid
+/// (MODEL_CARD.md, "Skeleton model v5" to "v9").
 pub const DEFAULT_TEMPERATURE: f32 = 0.5;
 
 impl Default for PredictConfig {
