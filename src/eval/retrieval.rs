@@ -39,7 +39,14 @@ pub fn eval_retrieval(
             return;
         };
         let frame = BoxFrame::of(mesh);
-        let mut pred = lib.entries[best].fit(&points, warp);
+        let mut pred = if warp {
+            // Four independent draws, as the predictor's quarters of its samples.
+            let more: Vec<Vec<glam::Vec3>> = (12..15).map(|k| shape_points(mesh, k)).collect();
+            let draws = [&points[..], &more[0][..], &more[1][..], &more[2][..]];
+            lib.entries[best].fit_mean(&draws)
+        } else {
+            lib.entries[best].fit(&points, warp)
+        };
         pred.map_points(|q| frame.invert(q));
         if warp {
             // As the predictor does with a borrowed skeleton (in its unit frame).

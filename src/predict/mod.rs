@@ -21,7 +21,7 @@ use crate::rig::tokenizer::{
 };
 use crate::rig::Skeleton;
 use glam::Vec3;
-use library::{shape_of_samples, BoxFrame, Library};
+use library::{draws_of_samples, shape_of_samples, BoxFrame, Library};
 use score::{SkeletonScore, SurfaceModel};
 use std::collections::HashSet;
 use std::sync::Arc;
@@ -467,13 +467,16 @@ fn library_candidates(
     }
     let frame = BoxFrame::from_bounds(samples.bounds.0, samples.bounds.1);
     let shape = shape_of_samples(&samples.points, &frame);
+    // Ranked on the first draw; fitted on every draw of the model's samples.
+    let draws = draws_of_samples(&samples.points, &frame);
+    let draws: Vec<&[Vec3]> = draws.iter().map(Vec::as_slice).collect();
     lib.ranked(&shape, frame.proportions(), category)
         .into_iter()
         .filter(|&(i, _)| lib.entries[i].bones() <= max_bones)
         .take(k)
         .map(|(i, d)| {
             let e = &lib.entries[i];
-            let mut s = e.fit(&shape, true);
+            let mut s = e.fit_mean(&draws);
             s.map_points(|q| frame.invert(q));
             inside::pull_inside(&mut s, samples);
             (e.name.clone(), d, s)
