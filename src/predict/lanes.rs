@@ -18,6 +18,14 @@ pub fn avx2() -> bool {
 /// Runs `lanes` over `points` eight at a time, transposed to one array per coordinate,
 /// and returns its values in the order of `points`.
 pub fn by_lanes(points: &[Vec3], lanes: impl Fn(&[[f32; LANES]; 3]) -> [f32; LANES]) -> Vec<f32> {
+    by_lanes_of(points, lanes)
+}
+
+/// [`by_lanes`] for lane values of any type.
+fn by_lanes_of<T: Copy>(
+    points: &[Vec3],
+    lanes: impl Fn(&[[f32; LANES]; 3]) -> [T; LANES],
+) -> Vec<T> {
     let mut out = Vec::with_capacity(points.len());
     for chunk in points.chunks(LANES) {
         // Short chunks repeat their last point; the extra lanes are dropped.
@@ -29,6 +37,120 @@ pub fn by_lanes(points: &[Vec3], lanes: impl Fn(&[[f32; LANES]; 3]) -> [f32; LAN
         out.extend_from_slice(&lanes(&q)[..chunk.len()]);
     }
     out
+}
+
+/// Each point's nearest member of `set` (the first of equals): the same distances, compared
+/// in the same order, as [`nearest2`]. `None` when `set` is empty.
+pub fn nearest_index(points: &[Vec3], set: &[Vec3]) -> Vec<Option<usize>> {
+    by_lanes_of(points, |q| {
+        #[cfg(target_arch = "x86_64")]
+        if avx2() {
+            // SAFETY: the features were detected.
+            return unsafe { nearest_index_avx2(set, q) };
+        }
+        nearest_index_lanes(set, q)
+    })
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+unsafe fn nearest_index_avx2(set: &[Vec3], q: &[[f32; LANES]; 3]) -> [Option<usize>; LANES] {
+    nearest_index_lanes(set, q)
+}
+
+#[inline(always)]
+fn nearest_index_lanes(set: &[Vec3], q: &[[f32; LANES]; 3]) -> [Option<usize>; LANES] {
+    let mut best = [f32::INFINITY; LANES];
+    // u32 lanes vectorize where usize ones would not; a set has far fewer members.
+    let mut at = [u32::MAX; LANES];
+    for (i, s) in set.iter().enumerate() {
+        for l in 0..LANES {
+            let (x, y, z) = (q[0][l] - s.x, q[1][l] - s.y, q[2][l] - s.z);
+            let d = x * x + y * y + z * z;
+            let closer = d < best[l];
+            best[l] = if closer { d } else { best[l] };
+            at[l] = if closer { i as u32 } else { at[l] };
+        }
+    }
+    at.map(|i| (i != u32::MAX).then_some(i as usize))
+}
+
+/// Gaussian-weighted mean of `values` around each of `points`: the pair `k` weighs
+/// exp(−|point − keys[k]|² · `inv`), pairs further out than an exponent of 30 (1e-13 of a
+/// pair at the point itself) not at all; zero where nothing weighs. The exponential is
+/// [`exp_neg`], within 2e-7 of the exact one, so that the pairs of eight points are
+/// weighed at once.
+pub fn gaussian_mean(points: &[Vec3], keys: &[Vec3], values: &[Vec3], inv: f32) -> Vec<Vec3> {
+    assert_eq!(keys.len(), values.len(), "one value per key");
+    by_lanes_of(points, |q| {
+        #[cfg(target_arch = "x86_64")]
+        if avx2() {
+            // SAFETY: the features were detected.
+            return unsafe { gaussian_mean_avx2(keys, values, inv, q) };
+        }
+        gaussian_mean_lanes(keys, values, inv, q)
+    })
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+unsafe fn gaussian_mean_avx2(
+    keys: &[Vec3],
+    values: &[Vec3],
+    inv: f32,
+    q: &[[f32; LANES]; 3],
+) -> [Vec3; LANES] {
+    gaussian_mean_lanes(keys, values, inv, q)
+}
+
+#[inline(always)]
+fn gaussian_mean_lanes(
+    keys: &[Vec3],
+    values: &[Vec3],
+    inv: f32,
+    q: &[[f32; LANES]; 3],
+) -> [Vec3; LANES] {
+    let mut sum = [[0.0f32; LANES]; 3];
+    let mut w = [0.0f32; LANES];
+    for (k, v) in keys.iter().zip(values) {
+        for l in 0..LANES {
+            let (x, y, z) = (q[0][l] - k.x, q[1][l] - k.y, q[2][l] - k.z);
+            let e = (x * x + y * y + z * z) * inv;
+            let g = if e < 30.0 { exp_neg(e) } else { 0.0 };
+            sum[0][l] += v.x * g;
+            sum[1][l] += v.y * g;
+            sum[2][l] += v.z * g;
+            w[l] += g;
+        }
+    }
+    std::array::from_fn(|l| {
+        if w[l] > 1e-12 {
+            Vec3::new(sum[0][l], sum[1][l], sum[2][l]) / w[l]
+        } else {
+            Vec3::ZERO
+        }
+    })
+}
+
+/// exp(−e) for e ≥ 0, in straight-line arithmetic the compiler vectorizes (a library
+/// `expf` is one call per lane): Cephes' `expf`, a power of two times a degree-6
+/// polynomial on |r| ≤ ln 2 / 2. Past e = 87 it returns exp(−87).
+#[inline(always)]
+pub fn exp_neg(e: f32) -> f32 {
+    const LOG2E: f32 = std::f32::consts::LOG2_E;
+    // ln 2 in two parts, so that n · C1 is exact.
+    const C1: f32 = 0.693_359_4;
+    const C2: f32 = -2.121_944_4e-4;
+    let x = -(if e < 87.0 { e } else { 87.0 });
+    let n = (x * LOG2E + 0.5).floor();
+    let r = x - n * C1 - n * C2;
+    let p = ((((1.987_569_1e-4 * r + 1.398_199_9e-3) * r + 8.333_452e-3) * r + 4.166_579_6e-2) * r
+        + 1.666_666_5e-1)
+        * r
+        // Cephes writes 5.0000001201e-1, which is 0.5 in f32.
+        + 0.5;
+    let y = p * r * r + r + 1.0;
+    y * f32::from_bits(((n as i32 + 127) as u32) << 23)
 }
 
 /// Each point's squared distance to the nearest of `set` (infinite when `set` is empty).
@@ -135,6 +257,87 @@ mod tests {
             }
         }
         assert_eq!(nearest2(&[Vec3::ZERO], &[]), vec![f32::INFINITY]);
+    }
+
+    #[test]
+    fn nearest_index_finds_the_first_nearest_for_every_chunk_length() {
+        let mut set: Vec<Vec3> = (0..29)
+            .map(|i| {
+                let t = i as f32;
+                Vec3::new((t * 0.9).sin(), (t * 0.4).cos(), t * 0.07 - 1.0)
+            })
+            .collect();
+        // A duplicate: the first of two equals wins.
+        set.push(set[5]);
+        for n in [1, 7, 8, 9, 20] {
+            let mut points: Vec<Vec3> = (0..n)
+                .map(|i| Vec3::new(i as f32 * 0.1 - 0.5, 0.2, (i as f32).cos()))
+                .collect();
+            points[0] = set[5] + Vec3::splat(1e-3);
+            let got = nearest_index(&points, &set);
+            for (p, i) in points.iter().zip(&got) {
+                let d: Vec<f32> = set.iter().map(|q| p.distance_squared(*q)).collect();
+                let want = (0..d.len()).fold(0, |b, k| if d[k] < d[b] { k } else { b });
+                assert_eq!(*i, Some(want), "{p:?}");
+            }
+            assert_eq!(got[0], Some(5));
+        }
+        assert_eq!(nearest_index(&[Vec3::ZERO], &[]), vec![None]);
+    }
+
+    #[test]
+    fn exp_neg_is_within_two_parts_in_ten_million_of_the_exact_one() {
+        for k in 0..=20_000 {
+            let e = k as f32 * 0.0045; // 0 to 90
+            let (got, want) = (exp_neg(e) as f64, (-(e.min(87.0)) as f64).exp());
+            assert!(
+                ((got - want) / want).abs() < 2e-7,
+                "exp(-{e}): {got} vs {want}"
+            );
+        }
+        assert_eq!(exp_neg(0.0), 1.0);
+    }
+
+    #[test]
+    fn gaussian_mean_matches_the_one_point_sum() {
+        let keys: Vec<Vec3> = (0..53)
+            .map(|i| {
+                let t = i as f32;
+                Vec3::new((t * 0.3).sin(), (t * 0.8).cos(), t * 0.02 - 0.5)
+            })
+            .collect();
+        let values: Vec<Vec3> = keys
+            .iter()
+            .map(|k| Vec3::new(k.z, -k.x, 0.5 * k.y))
+            .collect();
+        let points: Vec<Vec3> = (0..11)
+            .map(|i| Vec3::new(i as f32 * 0.2 - 1.0, 0.1, (i as f32 * 0.5).sin()))
+            // Far from every key nothing weighs: no displacement.
+            .chain([Vec3::splat(50.0)])
+            .collect();
+        for sigma in [0.05f32, 0.2, 0.6] {
+            let inv = 1.0 / (2.0 * sigma * sigma);
+            let got = gaussian_mean(&points, &keys, &values, inv);
+            for (p, g) in points.iter().zip(&got) {
+                let (mut sum, mut w) = (glam::DVec3::ZERO, 0.0f64);
+                for (k, v) in keys.iter().zip(&values) {
+                    let e = ((*p - *k).length_squared() * inv) as f64;
+                    if e < 30.0 {
+                        sum += v.as_dvec3() * (-e).exp();
+                        w += (-e).exp();
+                    }
+                }
+                let want = if w > 1e-12 {
+                    sum / w
+                } else {
+                    glam::DVec3::ZERO
+                };
+                assert!(
+                    (g.as_dvec3() - want).length() < 1e-5,
+                    "σ {sigma}, {p:?}: {g:?} vs {want:?}"
+                );
+            }
+        }
     }
 
     fn segment_distance2(q: Vec3, a: Vec3, b: Vec3) -> f32 {
