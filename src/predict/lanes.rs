@@ -17,12 +17,7 @@ pub fn avx2() -> bool {
 
 /// Runs `lanes` over `points` eight at a time, transposed to one array per coordinate,
 /// and returns its values in the order of `points`.
-pub fn by_lanes(points: &[Vec3], lanes: impl Fn(&[[f32; LANES]; 3]) -> [f32; LANES]) -> Vec<f32> {
-    by_lanes_of(points, lanes)
-}
-
-/// [`by_lanes`] for lane values of any type.
-fn by_lanes_of<T: Copy>(
+pub fn by_lanes<T: Copy>(
     points: &[Vec3],
     lanes: impl Fn(&[[f32; LANES]; 3]) -> [T; LANES],
 ) -> Vec<T> {
@@ -39,23 +34,36 @@ fn by_lanes_of<T: Copy>(
     out
 }
 
+/// `run_lanes!(points, f(a: A, b: B) -> T)`: [`by_lanes`] over `points` with the lane
+/// function `f(a, b, q) -> [T; LANES]`, through a copy of `f` compiled with AVX2 and FMA
+/// where the CPU has them. Every use expands its own `#[target_feature]` wrapper, as the
+/// module's first paragraph requires; `f` should be `#[inline(always)]`.
+macro_rules! run_lanes {
+    ($points:expr, $lanes:ident($($arg:ident: $ty:ty),*) -> $out:ty) => {{
+        #[cfg(target_arch = "x86_64")]
+        #[target_feature(enable = "avx2,fma")]
+        unsafe fn with_avx2(
+            $($arg: $ty,)*
+            q: &[[f32; $crate::predict::lanes::LANES]; 3],
+        ) -> [$out; $crate::predict::lanes::LANES] {
+            $lanes($($arg,)* q)
+        }
+        $crate::predict::lanes::by_lanes($points, |q| {
+            #[cfg(target_arch = "x86_64")]
+            if $crate::predict::lanes::avx2() {
+                // SAFETY: the features were detected.
+                return unsafe { with_avx2($($arg,)* q) };
+            }
+            $lanes($($arg,)* q)
+        })
+    }};
+}
+pub(crate) use run_lanes;
+
 /// Each point's nearest member of `set` (the first of equals): the same distances, compared
 /// in the same order, as [`nearest2`]. `None` when `set` is empty.
 pub fn nearest_index(points: &[Vec3], set: &[Vec3]) -> Vec<Option<usize>> {
-    by_lanes_of(points, |q| {
-        #[cfg(target_arch = "x86_64")]
-        if avx2() {
-            // SAFETY: the features were detected.
-            return unsafe { nearest_index_avx2(set, q) };
-        }
-        nearest_index_lanes(set, q)
-    })
-}
-
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2,fma")]
-unsafe fn nearest_index_avx2(set: &[Vec3], q: &[[f32; LANES]; 3]) -> [Option<usize>; LANES] {
-    nearest_index_lanes(set, q)
+    run_lanes!(points, nearest_index_lanes(set: &[Vec3]) -> Option<usize>)
 }
 
 #[inline(always)]
@@ -82,25 +90,7 @@ fn nearest_index_lanes(set: &[Vec3], q: &[[f32; LANES]; 3]) -> [Option<usize>; L
 /// weighed at once.
 pub fn gaussian_mean(points: &[Vec3], keys: &[Vec3], values: &[Vec3], inv: f32) -> Vec<Vec3> {
     assert_eq!(keys.len(), values.len(), "one value per key");
-    by_lanes_of(points, |q| {
-        #[cfg(target_arch = "x86_64")]
-        if avx2() {
-            // SAFETY: the features were detected.
-            return unsafe { gaussian_mean_avx2(keys, values, inv, q) };
-        }
-        gaussian_mean_lanes(keys, values, inv, q)
-    })
-}
-
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2,fma")]
-unsafe fn gaussian_mean_avx2(
-    keys: &[Vec3],
-    values: &[Vec3],
-    inv: f32,
-    q: &[[f32; LANES]; 3],
-) -> [Vec3; LANES] {
-    gaussian_mean_lanes(keys, values, inv, q)
+    run_lanes!(points, gaussian_mean_lanes(keys: &[Vec3], values: &[Vec3], inv: f32) -> Vec3)
 }
 
 #[inline(always)]
@@ -155,20 +145,7 @@ pub fn exp_neg(e: f32) -> f32 {
 
 /// Each point's squared distance to the nearest of `set` (infinite when `set` is empty).
 pub fn nearest2(points: &[Vec3], set: &[Vec3]) -> Vec<f32> {
-    by_lanes(points, |q| {
-        #[cfg(target_arch = "x86_64")]
-        if avx2() {
-            // SAFETY: the features were detected.
-            return unsafe { nearest2_avx2(set, q) };
-        }
-        nearest2_lanes(set, q)
-    })
-}
-
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2,fma")]
-unsafe fn nearest2_avx2(set: &[Vec3], q: &[[f32; LANES]; 3]) -> [f32; LANES] {
-    nearest2_lanes(set, q)
+    run_lanes!(points, nearest2_lanes(set: &[Vec3]) -> f32)
 }
 
 #[inline(always)]
@@ -186,20 +163,7 @@ fn nearest2_lanes(set: &[Vec3], q: &[[f32; LANES]; 3]) -> [f32; LANES] {
 
 /// Each point's squared distance to the nearest of the segments `(a, b)`.
 pub fn nearest_segment2(points: &[Vec3], segs: &[(Vec3, Vec3)]) -> Vec<f32> {
-    by_lanes(points, |q| {
-        #[cfg(target_arch = "x86_64")]
-        if avx2() {
-            // SAFETY: the features were detected.
-            return unsafe { nearest_segment2_avx2(segs, q) };
-        }
-        nearest_segment2_lanes(segs, q)
-    })
-}
-
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2,fma")]
-unsafe fn nearest_segment2_avx2(segs: &[(Vec3, Vec3)], q: &[[f32; LANES]; 3]) -> [f32; LANES] {
-    nearest_segment2_lanes(segs, q)
+    run_lanes!(points, nearest_segment2_lanes(segs: &[(Vec3, Vec3)]) -> f32)
 }
 
 /// The same arithmetic, in the same order, as the one-point formula in the tests.
@@ -234,14 +198,19 @@ fn nearest_segment2_lanes(segs: &[(Vec3, Vec3)], q: &[[f32; LANES]; 3]) -> [f32;
 mod tests {
     use super::*;
 
-    #[test]
-    fn nearest_matches_the_brute_force_for_every_chunk_length() {
-        let set: Vec<Vec3> = (0..37)
+    /// `n` points along a wavy curve: (sin(a·i), cos(b·i), c·i + d).
+    fn curve(n: usize, [a, b, c, d]: [f32; 4]) -> Vec<Vec3> {
+        (0..n)
             .map(|i| {
                 let t = i as f32;
-                Vec3::new((t * 0.7).sin(), (t * 1.3).cos(), t * 0.05 - 1.0)
+                Vec3::new((t * a).sin(), (t * b).cos(), t * c + d)
             })
-            .collect();
+            .collect()
+    }
+
+    #[test]
+    fn nearest_matches_the_brute_force_for_every_chunk_length() {
+        let set = curve(37, [0.7, 1.3, 0.05, -1.0]);
         for n in [1, 7, 8, 9, 20] {
             let points: Vec<Vec3> = (0..n)
                 .map(|i| Vec3::new(i as f32 * 0.1 - 0.5, 0.2, (i as f32).cos()))
@@ -261,12 +230,7 @@ mod tests {
 
     #[test]
     fn nearest_index_finds_the_first_nearest_for_every_chunk_length() {
-        let mut set: Vec<Vec3> = (0..29)
-            .map(|i| {
-                let t = i as f32;
-                Vec3::new((t * 0.9).sin(), (t * 0.4).cos(), t * 0.07 - 1.0)
-            })
-            .collect();
+        let mut set = curve(29, [0.9, 0.4, 0.07, -1.0]);
         // A duplicate: the first of two equals wins.
         set.push(set[5]);
         for n in [1, 7, 8, 9, 20] {
@@ -300,12 +264,7 @@ mod tests {
 
     #[test]
     fn gaussian_mean_matches_the_one_point_sum() {
-        let keys: Vec<Vec3> = (0..53)
-            .map(|i| {
-                let t = i as f32;
-                Vec3::new((t * 0.3).sin(), (t * 0.8).cos(), t * 0.02 - 0.5)
-            })
-            .collect();
+        let keys = curve(53, [0.3, 0.8, 0.02, -0.5]);
         let values: Vec<Vec3> = keys
             .iter()
             .map(|k| Vec3::new(k.z, -k.x, 0.5 * k.y))

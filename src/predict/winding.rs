@@ -6,7 +6,7 @@
 //! into one vector (8-wide with AVX2, when the CPU has it). Under load the one-probe loop
 //! was 6 % of the server's CPU.
 
-use super::lanes::{avx2, by_lanes, LANES};
+use super::lanes::{run_lanes, LANES};
 use glam::Vec3;
 
 /// Triangles summed in `f32` before the running total takes the block in `f64`: enough
@@ -35,14 +35,8 @@ impl Triangles {
     /// The winding number at each probe, in order: about 1 inside a closed surface, 0
     /// outside, with the sign of the triangles' orientation.
     pub fn winding(&self, probes: &[Vec3]) -> Vec<f32> {
-        by_lanes(probes, |q| {
-            #[cfg(target_arch = "x86_64")]
-            if avx2() {
-                // SAFETY: the features were detected.
-                return unsafe { lanes_avx2(&self.corners, q) };
-            }
-            lanes(&self.corners, q)
-        })
+        let corners = &self.corners[..];
+        run_lanes!(probes, lanes(corners: &[[f32; 9]]) -> f32)
     }
 }
 
@@ -74,21 +68,9 @@ impl Dipoles {
 
     /// The estimated winding number at each probe, in order.
     pub fn winding(&self, probes: &[Vec3]) -> Vec<f32> {
-        by_lanes(probes, |q| {
-            #[cfg(target_arch = "x86_64")]
-            if avx2() {
-                // SAFETY: the features were detected.
-                return unsafe { dipole_lanes_avx2(self, q) };
-            }
-            dipole_lanes(self, q)
-        })
+        let d = self;
+        run_lanes!(probes, dipole_lanes(d: &Dipoles) -> f32)
     }
-}
-
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2,fma")]
-unsafe fn dipole_lanes_avx2(d: &Dipoles, q: &[[f32; LANES]; 3]) -> [f32; LANES] {
-    dipole_lanes(d, q)
 }
 
 #[inline(always)]
@@ -102,13 +84,6 @@ fn dipole_lanes(d: &Dipoles, q: &[[f32; LANES]; 3]) -> [f32; LANES] {
         }
     }
     w.map(|w| w * d.sample_area / (4.0 * std::f32::consts::PI))
-}
-
-/// [`lanes`] compiled for AVX2 with FMA: the same code, 8 lanes to a register.
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2,fma")]
-unsafe fn lanes_avx2(corners: &[[f32; 9]], q: &[[f32; LANES]; 3]) -> [f32; LANES] {
-    lanes(corners, q)
 }
 
 #[inline(always)]
