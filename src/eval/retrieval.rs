@@ -31,8 +31,14 @@ pub fn eval_retrieval(
 ) -> Result<Report, EvalError> {
     let lib = build_library(dataset, train_split, limits)?;
     let models = each_rig(dataset, split, limits, |e, mesh, gt, report| {
-        let points = shape_points(mesh, 11);
-        let ranked = lib.ranked(&points, BoxFrame::of(mesh).proportions(), Some(&e.category));
+        // Four independent draws, as the predictor's quarters of its samples: ranked on
+        // the first, fitted on all.
+        let draws: Vec<Vec<glam::Vec3>> = (11..15).map(|k| shape_points(mesh, k)).collect();
+        let ranked = lib.ranked(
+            &draws[0],
+            BoxFrame::of(mesh).proportions(),
+            Some(&e.category),
+        );
         // Leave-one-out when the split scored is the library's own.
         let Some(&(best, dist)) = ranked.iter().find(|(i, _)| lib.entries[*i].name != e.file)
         else {
@@ -40,12 +46,9 @@ pub fn eval_retrieval(
         };
         let frame = BoxFrame::of(mesh);
         let mut pred = if warp {
-            // Four independent draws, as the predictor's quarters of its samples.
-            let more: Vec<Vec<glam::Vec3>> = (12..15).map(|k| shape_points(mesh, k)).collect();
-            let draws = [&points[..], &more[0][..], &more[1][..], &more[2][..]];
             lib.entries[best].fit_mean(&draws)
         } else {
-            lib.entries[best].fit(&points, warp)
+            lib.entries[best].fit(&draws[0], false)
         };
         pred.map_points(|q| frame.invert(q));
         if warp {

@@ -126,7 +126,7 @@ fn gaussian_mean_lanes(
 /// `expf` is one call per lane): Cephes' `expf`, a power of two times a degree-6
 /// polynomial on |r| ≤ ln 2 / 2. Past e = 87 it returns exp(−87).
 #[inline(always)]
-pub fn exp_neg(e: f32) -> f32 {
+fn exp_neg(e: f32) -> f32 {
     const LOG2E: f32 = std::f32::consts::LOG2_E;
     // ln 2 in two parts, so that n · C1 is exact.
     const C1: f32 = 0.693_359_4;

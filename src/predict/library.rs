@@ -195,8 +195,8 @@ impl Entry {
     /// ([`lanes::nearest_index`], [`lanes::gaussian_mean`]), so the four fits cost what one
     /// did before (the Dragon end to end, best of 4: 84 ms with one fit, 121 ms with four
     /// before the lanes, 88 ms after).
-    pub fn fit_mean(&self, draws: &[&[Vec3]]) -> Skeleton {
-        let fits: Vec<Skeleton> = draws.iter().map(|d| self.fit(d, true)).collect();
+    pub fn fit_mean<D: AsRef<[Vec3]>>(&self, draws: &[D]) -> Skeleton {
+        let fits: Vec<Skeleton> = draws.iter().map(|d| self.fit(d.as_ref(), true)).collect();
         let Some(first) = fits.first() else {
             return self.skeleton.clone();
         };
@@ -485,7 +485,7 @@ mod tests {
             assert_eq!((&m.name, m.parent), (&fa.bones[i].name, fa.bones[i].parent));
         }
         assert_eq!(
-            armed.fit_mean(&[]),
+            armed.fit_mean::<&[Vec3]>(&[]),
             armed.skeleton,
             "no draw: the entry as stored"
         );

@@ -21,7 +21,7 @@ use crate::rig::tokenizer::{
 };
 use crate::rig::Skeleton;
 use glam::Vec3;
-use library::{draws_of_samples, shape_of_samples, BoxFrame, Library};
+use library::{draws_of_samples, BoxFrame, Library};
 use score::{SkeletonScore, SurfaceModel};
 use std::collections::HashSet;
 use std::sync::Arc;
@@ -466,11 +466,9 @@ fn library_candidates(
         return Vec::new();
     }
     let frame = BoxFrame::from_bounds(samples.bounds.0, samples.bounds.1);
-    let shape = shape_of_samples(&samples.points, &frame);
     // Ranked on the first draw; fitted on every draw of the model's samples.
     let draws = draws_of_samples(&samples.points, &frame);
-    let draws: Vec<&[Vec3]> = draws.iter().map(Vec::as_slice).collect();
-    lib.ranked(&shape, frame.proportions(), category)
+    lib.ranked(&draws[0], frame.proportions(), category)
         .into_iter()
         .filter(|&(i, _)| lib.entries[i].bones() <= max_bones)
         .take(k)
