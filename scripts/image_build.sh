@@ -49,7 +49,7 @@ rm -rf "$root"
 install -D -m 755 "$binary" "$root/app/rigserve"
 install -D -m 644 .onnxruntime/libonnxruntime.so.1.31.1 "$root/app/lib/libonnxruntime.so.1.31.1"
 cp -R models "$root/app/models"
-# As in .dockerignore: the skeleton library built from ../shared stays out of images.
+# As in .dockerignore: a library.json built locally stays out; library.bin ships.
 rm -f "$root/app/models/library.json"
 install -D -m 755 deploy/healthcheck.sh "$root/app/healthcheck.sh"
 mkdir -p "$root/data"

@@ -51,14 +51,6 @@ fi
 # wheel, unpacked into .onnxruntime/ (git-ignored). RIGSERVE_ORT_LIB points at it.
 ./scripts/fetch_ort.sh .onnxruntime
 
-# The skeleton library (models/library.json, git-ignored: it is made of third-party rigs,
-# which are read from ../shared and never committed): the `train` split of ../shared/rigs,
-# whose skeletons the service lends to meshes that resemble one of them. Rebuilt every
-# time (about a second once built), so it always matches this checkout's format. Without
-# ../shared the service decodes with the model alone.
-if [ -f ../shared/rigs/manifest.tsv ]; then
-  echo "setup: skeleton library from ../shared/rigs (train split) -> models/library.json"
-  cargo run --release --quiet --bin rigserve -- library --dataset ../shared/rigs --split train --out models/library.json
-else
-  echo "setup: ../shared/rigs is absent; no skeleton library (the model alone)"
-fi
+# The skeleton library is committed (models/library.bin, credited in models/NOTICE;
+# scripts/build_library.sh rebuilds it): set-up builds nothing from ../shared, so a
+# clone without it rigs exactly as the figures in the model card were measured.

@@ -355,7 +355,11 @@ fn dockerfile_and_image_build_script_agree() {
     }
     assert!(
         ignore.lines().any(|l| l == "models/library.json"),
-        ".dockerignore lets the skeleton library (third-party rigs) into the image"
+        ".dockerignore lets a locally built library.json into the image"
+    );
+    assert!(
+        !ignore.lines().any(|l| l == "models/library.bin" || l == "models/NOTICE"),
+        ".dockerignore keeps the shipped library or its notice out of the image"
     );
 
     // The builder is the toolchain this repository builds with.
@@ -400,6 +404,8 @@ fn image_layout_serves_rigs_and_drains_on_sigterm() {
     for p in [
         "app/rigserve",
         "app/models/skeleton/decoder.onnx",
+        "app/models/library.bin",
+        "app/models/NOTICE",
         "app/lib/libonnxruntime.so.1.31.1",
         "app/healthcheck.sh",
     ] {
@@ -407,7 +413,7 @@ fn image_layout_serves_rigs_and_drains_on_sigterm() {
     }
     assert!(
         !root.join("app/models/library.json").exists(),
-        "the skeleton library (third-party rigs) is in the image layout"
+        "a locally built library.json is in the image layout"
     );
     let _ = std::fs::remove_dir_all(&root);
 }

@@ -42,9 +42,10 @@ pub struct EvalArgs {
     /// skeletons join the model's candidates (never the split scored).
     #[arg(long)]
     pub library_split: Option<String>,
-    /// Do not pass the manifest's category to the model as a hint.
+    /// Pass the manifest's category to the model as a hint (off by default: users send
+    /// none, so the figures that matter are the ones without it).
     #[arg(long)]
-    pub no_category_hint: bool,
+    pub category_hint: bool,
     #[command(flatten)]
     pub decode: DecodeArgs,
     #[command(flatten)]
@@ -59,7 +60,8 @@ pub struct EvalArgs {
 pub fn run(a: EvalArgs) -> anyhow::Result<()> {
     let limits = a.limits.limits();
     let split = a.split.as_deref();
-    let report = if let Some(pred) = &a.pred {
+    let mut used = None;
+    let mut report = if let Some(pred) = &a.pred {
         rigserve::eval::eval_pred(&a.dataset, split, pred, &limits)?
     } else if a.retrieval {
         rigserve::eval::retrieval::eval_retrieval(
@@ -79,6 +81,7 @@ pub fn run(a: EvalArgs) -> anyhow::Result<()> {
             ..BackendConfig::default()
         })?;
         let mut cfg = a.decode.predict_config(None);
+        used = Some(a.model.used(a.library_split.is_none(), a.category_hint)?);
         let lib = match &a.library_split {
             Some(ls) => {
                 anyhow::ensure!(
@@ -113,11 +116,20 @@ pub fn run(a: EvalArgs) -> anyhow::Result<()> {
             split,
             &backend,
             &cfg,
-            !a.no_category_hint,
+            a.category_hint,
             &limits,
         )?
     } else if a.skin_on_gt {
         let model = a.skin.load_model(a.model.ort_lib.as_deref())?;
+        used = Some(rigserve::eval::Used {
+            models: model
+                .as_ref()
+                .map(|m| rigserve::eval::FileHash::of(m.path()))
+                .transpose()?
+                .into_iter()
+                .collect(),
+            ..Default::default()
+        });
         eprintln!(
             "skin method: {}",
             model.as_ref().map_or("geometric".to_string(), |m| format!(
@@ -135,6 +147,20 @@ pub fn run(a: EvalArgs) -> anyhow::Result<()> {
     } else {
         anyhow::bail!("say what to score: --pred DIR, --baseline, --skeleton-only or --skin-on-gt");
     };
+    if let Some(u) = &used {
+        for m in &u.models {
+            eprintln!("model: {} sha256 {}", m.path, &m.sha256[..16]);
+        }
+        match &u.library {
+            Some(l) => eprintln!("library: {} sha256 {}", l.path, &l.sha256[..16]),
+            None if a.library_split.is_some() => {
+                eprintln!("library: split {} of the data set", a.library_split.as_deref().unwrap_or(""))
+            }
+            None => eprintln!("library: none (the model alone)"),
+        }
+        eprintln!("category hint: {}", if u.category_hint { "on" } else { "off" });
+    }
+    report.used = used;
     std::fs::write(&a.out, serde_json::to_vec_pretty(&report)?)
         .with_context(|| format!("writing {}", a.out.display()))?;
     let o = &report.overall;
@@ -150,6 +176,18 @@ pub fn run(a: EvalArgs) -> anyhow::Result<()> {
         o.skin.recall,
         o.skin.deformation
     );
+    if report.per_artist.len() > 1 {
+        for (artist, g) in &report.per_artist {
+            eprintln!(
+                "  {:<40} {:>3} files, {:>5.1}% valid | CD-J2J {:.4} CD-B2B {:.4}",
+                artist,
+                g.count,
+                g.valid_fraction * 100.0,
+                g.skeleton.cd_j2j,
+                g.skeleton.cd_b2b
+            );
+        }
+    }
     let best: Vec<f32> = report
         .models
         .iter()

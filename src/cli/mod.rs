@@ -76,13 +76,21 @@ pub enum Command {
 
 #[derive(clap::Args, Debug)]
 pub struct LibraryArgs {
-    /// Folder holding `manifest.tsv` and the rigged files it lists.
-    #[arg(long)]
-    pub dataset: PathBuf,
-    /// Only the rows of this split (e.g. `train`).
+    /// Folder holding `manifest.tsv` and the rigged files it lists (repeat for several).
+    #[arg(long, required = true)]
+    pub dataset: Vec<PathBuf>,
+    /// Only the rows of this split (e.g. `train`), in every data set.
     #[arg(long)]
     pub split: String,
-    /// Where to write the library (e.g. models/library.json).
+    /// Leave out rows whose `license` contains this text, case-insensitively (repeatable;
+    /// e.g. `BY-SA`: share-alike rigs may train a model but are not shipped in a library).
+    #[arg(long)]
+    pub exclude_license: Vec<String>,
+    /// Leave out this file of the data sets (repeatable), e.g. one whose manifest licence
+    /// its source's own licence file contradicts.
+    #[arg(long)]
+    pub exclude: Vec<String>,
+    /// Where to write the library (e.g. models/library.bin; `.json` writes JSON).
     #[arg(long)]
     pub out: PathBuf,
     #[command(flatten)]
@@ -164,13 +172,27 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Bench(c) => bench::run(c),
         Command::Eval(a) => eval::run(a),
         Command::Library(a) => {
-            let lib =
-                rigserve::eval::retrieval::build_library(&a.dataset, &a.split, &a.limits.limits())?;
+            let mut entries = Vec::new();
+            for d in &a.dataset {
+                let lib = rigserve::eval::retrieval::build_library_filtered(
+                    d,
+                    &a.split,
+                    &a.exclude_license,
+                    &a.limits.limits(),
+                )?;
+                entries.extend(lib.entries.into_iter().filter(|e| {
+                    let out = a.exclude.contains(&e.name);
+                    if out {
+                        eprintln!("library: leaving out {} (--exclude)", e.name);
+                    }
+                    !out
+                }));
+            }
+            let lib = rigserve::predict::library::Library::new(entries);
             anyhow::ensure!(
                 !lib.entries.is_empty(),
-                "no rig of split {} in {} could be read",
-                a.split,
-                a.dataset.display()
+                "no rig of split {} could be read",
+                a.split
             );
             lib.save(&a.out)
                 .with_context(|| format!("writing {}", a.out.display()))?;

@@ -39,7 +39,7 @@ pub struct ModelArgs {
     #[arg(long, env = "RIGSERVE_DENSE_DECODE")]
     pub dense_decode: bool,
     /// Skeleton library (`rigserve library` writes one) whose most similar entry, moved
-    /// onto the mesh, joins the candidates [default: library.json in --models when there].
+    /// onto the mesh, joins the candidates [default: library.bin in --models when there].
     #[arg(long, env = "RIGSERVE_LIBRARY", conflicts_with = "no_library")]
     pub library: Option<PathBuf>,
     /// Decode with the model alone, even when the models folder has a library.
@@ -85,6 +85,28 @@ impl ModelArgs {
                 Ok(Arc::new(lib))
             })
             .transpose()
+    }
+
+    /// The files a run with these arguments reads, hashed (`library`: whether the
+    /// library comes from these arguments at all).
+    pub fn used(&self, library: bool, category_hint: bool) -> anyhow::Result<rigserve::eval::Used> {
+        let files = ModelFiles::in_dir(&self.models, self.variant);
+        let hash = |p: &Path| {
+            rigserve::eval::FileHash::of(p).with_context(|| format!("reading {}", p.display()))
+        };
+        let mut models = vec![hash(&files.encoder)?, hash(&files.decoder)?];
+        if files.step.is_file() {
+            models.push(hash(&files.step)?);
+        }
+        let library = match self.library_path() {
+            Some(p) if library => Some(hash(&p)?),
+            _ => None,
+        };
+        Ok(rigserve::eval::Used {
+            models,
+            library,
+            category_hint,
+        })
     }
 
     pub fn backend(&self, mut config: BackendConfig) -> anyhow::Result<Backend> {

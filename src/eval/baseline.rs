@@ -60,6 +60,7 @@ pub fn score_baseline(
     limits: &Limits,
 ) -> ModelReport {
     let mut report = ModelReport::new(&e.file, &e.category);
+    report.artist = e.artist_or_unknown();
     let (mesh, gt) = match load_rig(&dataset.join(&e.file), limits) {
         Ok(x) => x,
         Err(err) => {

@@ -30,10 +30,24 @@ pub struct ManifestEntry {
     pub file: String,
     pub category: String,
     pub split: Option<String>,
+    /// Who made the rig: `ARTISTS.tsv` beside the manifest where the set has one, else
+    /// the manifest's `artist` column, else its `source_repo`.
+    pub artist: Option<String>,
+    /// The manifest's `license` (or `licence`) column.
+    pub license: Option<String>,
+}
+
+impl ManifestEntry {
+    pub fn artist_or_unknown(&self) -> String {
+        self.artist
+            .clone()
+            .unwrap_or_else(|| UNKNOWN_ARTIST.to_string())
+    }
 }
 
 /// Reads `manifest.tsv`: tab-separated with a header naming `file` and `category`
-/// (`split` optional).
+/// (`split`, `artist`, `source_repo` and `license` optional), and `ARTISTS.tsv` (`file`,
+/// `artist`) beside it when there is one.
 pub fn read_manifest(dataset: &Path) -> Result<Vec<ManifestEntry>, EvalError> {
     let path = dataset.join("manifest.tsv");
     let text = std::fs::read_to_string(&path).map_err(|e| EvalError::Io(path.clone(), e))?;
@@ -47,17 +61,42 @@ pub fn read_manifest(dataset: &Path) -> Result<Vec<ManifestEntry>, EvalError> {
         ));
     };
     let s = col("split");
+    let artist_col = col("artist").or_else(|| col("source_repo"));
+    let license_col = col("license").or_else(|| col("licence"));
+    let artists = read_artists(&dataset.join("ARTISTS.tsv"));
     Ok(lines
         .filter(|l| !l.trim().is_empty())
         .filter_map(|l| {
             let v: Vec<&str> = l.split('\t').collect();
+            let cell = |i: Option<usize>| {
+                i.and_then(|i| v.get(i))
+                    .map(|x| x.trim().to_string())
+                    .filter(|x| !x.is_empty())
+            };
+            let file = v.get(f)?.trim().to_string();
             Some(ManifestEntry {
-                file: v.get(f)?.trim().to_string(),
+                artist: artists.get(&file).cloned().or_else(|| cell(artist_col)),
+                license: cell(license_col),
                 category: v.get(c)?.trim().to_string(),
-                split: s.and_then(|s| v.get(s)).map(|x| x.trim().to_string()),
+                split: cell(s),
+                file,
             })
         })
         .collect())
+}
+
+/// `file -> artist` from an `ARTISTS.tsv` (header `file	artist`); empty when absent.
+fn read_artists(path: &Path) -> BTreeMap<String, String> {
+    let Ok(text) = std::fs::read_to_string(path) else {
+        return BTreeMap::new();
+    };
+    text.lines()
+        .skip(1)
+        .filter_map(|l| {
+            let (f, a) = l.split_once('\t')?;
+            Some((f.trim().to_string(), a.trim().to_string()))
+        })
+        .collect()
 }
 
 /// The manifest rows of one split (all rows when `split` is None).
@@ -77,6 +116,7 @@ pub struct ErrorInfo {
 pub struct ModelReport {
     pub file: String,
     pub category: String,
+    pub artist: String,
     pub valid: bool,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub error: Option<ErrorInfo>,
@@ -112,6 +152,7 @@ impl ModelReport {
         ModelReport {
             file: file.to_string(),
             category: category.to_string(),
+            artist: UNKNOWN_ARTIST.to_string(),
             valid: false,
             error: None,
             joints_gt: 0,
@@ -134,14 +175,49 @@ pub struct GroupReport {
     pub skin: SkinScores,
 }
 
+/// The group of files whose manifest names no artist or source.
+pub const UNKNOWN_ARTIST: &str = "unknown";
+
 #[derive(Clone, Debug, Serialize)]
 pub struct Report {
     pub dataset: String,
     pub split: Option<String>,
     pub mode: String,
+    /// The model and library files the figures came from, with content hashes, so a
+    /// figure can be traced to exactly what produced it (filled in by the caller).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub used: Option<Used>,
     pub overall: GroupReport,
     pub per_category: BTreeMap<String, GroupReport>,
+    pub per_artist: BTreeMap<String, GroupReport>,
     pub models: Vec<ModelReport>,
+}
+
+/// What produced a report's rigs.
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct Used {
+    pub models: Vec<FileHash>,
+    /// `None`: the model alone.
+    pub library: Option<FileHash>,
+    pub category_hint: bool,
+}
+
+#[derive(Clone, Debug, Serialize)]
+pub struct FileHash {
+    pub path: String,
+    /// SHA-256 of the file's bytes, hex.
+    pub sha256: String,
+}
+
+impl FileHash {
+    pub fn of(path: &Path) -> std::io::Result<FileHash> {
+        use sha2::{Digest, Sha256};
+        let bytes = std::fs::read(path)?;
+        Ok(FileHash {
+            path: path.display().to_string(),
+            sha256: hex::encode(Sha256::digest(&bytes)),
+        })
+    }
 }
 
 fn err(code: &str, message: impl ToString) -> ErrorInfo {
@@ -260,17 +336,26 @@ pub fn summarize(
     mode: &str,
     models: Vec<ModelReport>,
 ) -> Report {
-    let mut cats: BTreeMap<String, Vec<&ModelReport>> = BTreeMap::new();
-    for m in &models {
-        cats.entry(m.category.clone()).or_default().push(m);
-    }
-    let per_category = cats.into_iter().map(|(k, v)| (k, group(&v))).collect();
+    let by = |key: fn(&ModelReport) -> &str| {
+        let mut groups: BTreeMap<String, Vec<&ModelReport>> = BTreeMap::new();
+        for m in &models {
+            groups.entry(key(m).to_string()).or_default().push(m);
+        }
+        groups
+            .into_iter()
+            .map(|(k, v)| (k, group(&v)))
+            .collect::<BTreeMap<_, _>>()
+    };
+    let per_category = by(|m| &m.category);
+    let per_artist = by(|m| &m.artist);
     Report {
         dataset: dataset.display().to_string(),
         split: split.map(str::to_string),
         mode: mode.to_string(),
+        used: None,
         overall: group(&models.iter().collect::<Vec<_>>()),
         per_category,
+        per_artist,
         models,
     }
 }
@@ -294,6 +379,7 @@ pub fn eval_pred(
         };
         m.file = e.file.clone();
         m.category = e.category.clone();
+        m.artist = e.artist_or_unknown();
         models.push(m);
     }
     Ok(summarize(dataset, split, "pred", models))
@@ -332,6 +418,7 @@ pub(crate) fn each_rig(
     let mut models = Vec::new();
     for e in entries_in(dataset, split)? {
         let mut report = ModelReport::new(&e.file, &e.category);
+        report.artist = e.artist_or_unknown();
         match load_rig(&dataset.join(&e.file), limits) {
             Err(info) => report.error = Some(info),
             Ok((mesh, gt)) => {

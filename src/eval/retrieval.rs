@@ -9,8 +9,27 @@ use std::path::Path;
 
 /// Every loadable rig of `split` as a library entry.
 pub fn build_library(dataset: &Path, split: &str, limits: &Limits) -> Result<Library, EvalError> {
+    build_library_filtered(dataset, split, &[], limits)
+}
+
+/// [`build_library`] without the rows whose licence contains any of `exclude_license`
+/// (case-insensitive); each one left out is named.
+pub fn build_library_filtered(
+    dataset: &Path,
+    split: &str,
+    exclude_license: &[String],
+    limits: &Limits,
+) -> Result<Library, EvalError> {
     let mut entries = Vec::new();
     for e in entries_in(dataset, Some(split))? {
+        let license = e.license.as_deref().unwrap_or("").to_lowercase();
+        if let Some(x) = exclude_license
+            .iter()
+            .find(|x| license.contains(&x.to_lowercase()))
+        {
+            eprintln!("library: leaving out {}: its licence has {x:?}", e.file);
+            continue;
+        }
         match load_rig(&dataset.join(&e.file), limits) {
             Ok((mesh, gt)) => entries.push(Entry::new(&e.file, &e.category, &mesh, &gt.skeleton)),
             Err(err) => eprintln!(

@@ -5,9 +5,13 @@
 //! onto the new mesh by the displacement between the two surfaces. An artist rigging a
 //! character that resembles one already rigged starts from that rig; so does this.
 //!
-//! The library is a JSON file (`rigserve library` writes it from any folder of rigged
-//! files with a manifest); it holds, per entry, surface samples and the skeleton in box
-//! coordinates, never the mesh itself.
+//! The library is a file (`rigserve library` writes it from any folder of rigged files
+//! with a manifest: compact binary, [`codec`], or JSON when the name ends in `.json`); it
+//! holds, per entry, surface samples and the skeleton in box coordinates, never the mesh
+//! itself. The one the service uses by default is committed as `models/library.bin`, so
+//! a clone rigs as the figures in the model card were measured.
+
+mod codec;
 
 use super::lanes;
 use crate::mesh::{sample_surface, Mesh};
@@ -226,7 +230,7 @@ pub enum LibraryError {
     #[error("skeleton library {0}: {1}")]
     Read(PathBuf, std::io::Error),
     #[error("skeleton library {0} is not a library file: {1}")]
-    Parse(PathBuf, serde_json::Error),
+    Parse(PathBuf, String),
     #[error("skeleton library {0} is version {1}, this build reads version {LIBRARY_VERSION}")]
     Version(PathBuf, u32),
     #[error("skeleton library {0}: entry {1} is unusable ({2})")]
@@ -250,9 +254,9 @@ pub struct Library {
     pub entries: Vec<Entry>,
 }
 
-/// The library a models folder may hold (`library.json` in it).
+/// The library a models folder may hold (`library.bin` in it).
 pub fn default_path(models: &Path) -> PathBuf {
-    models.join("library.json")
+    models.join("library.bin")
 }
 
 impl Library {
@@ -267,8 +271,12 @@ impl Library {
     /// skeleton with finite coordinates, or the file is refused.
     pub fn load(path: &Path) -> Result<Library, LibraryError> {
         let bytes = std::fs::read(path).map_err(|e| LibraryError::Read(path.into(), e))?;
-        let lib: Library =
-            serde_json::from_slice(&bytes).map_err(|e| LibraryError::Parse(path.into(), e))?;
+        let parse = |e: String| LibraryError::Parse(path.into(), e);
+        let lib: Library = if bytes.starts_with(codec::MAGIC) {
+            codec::decode(&bytes).map_err(|e| parse(e.to_string()))?
+        } else {
+            serde_json::from_slice(&bytes).map_err(|e| parse(e.to_string()))?
+        };
         if lib.version != LIBRARY_VERSION {
             return Err(LibraryError::Version(path.into(), lib.version));
         }
@@ -295,11 +303,14 @@ impl Library {
         Ok(lib)
     }
 
+    /// Writes the compact form, or JSON when `path` ends in `.json`.
     pub fn save(&self, path: &Path) -> std::io::Result<()> {
-        std::fs::write(
-            path,
-            serde_json::to_vec(self).map_err(std::io::Error::other)?,
-        )
+        let bytes = if path.extension().is_some_and(|e| e == "json") {
+            serde_json::to_vec(self).map_err(std::io::Error::other)?
+        } else {
+            codec::encode(self)
+        };
+        std::fs::write(path, bytes)
     }
 
     /// Without the entries named in `names` (to score a split the library must not see).
@@ -541,5 +552,43 @@ mod tests {
                 .collect::<Vec<_>>(),
             ["armed", "slab"]
         );
+    }
+
+    #[test]
+    fn the_compact_file_keeps_skeletons_exact_and_samples_within_a_fixed_point_step() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("lib.bin");
+        let lib = library();
+        lib.save(&p).unwrap();
+        assert_eq!(&std::fs::read(&p).unwrap()[..4], codec::MAGIC);
+        let back = Library::load(&p).unwrap();
+        assert_eq!(back.entries.len(), lib.entries.len());
+        for (a, b) in back.entries.iter().zip(&lib.entries) {
+            assert_eq!((&a.name, &a.category), (&b.name, &b.category));
+            assert_eq!(a.skeleton, b.skeleton);
+            assert_eq!(a.proportions, b.proportions);
+            assert_eq!(a.points.len(), b.points.len());
+            let worst = a
+                .points
+                .iter()
+                .zip(&b.points)
+                .map(|(x, y)| (*x - *y).abs().max_element())
+                .fold(0.0f32, f32::max);
+            assert!(worst <= 0.5 / 32767.0 + 1e-7, "{worst}");
+        }
+        // Cut anywhere, or with bytes added, the file is refused, never half-read.
+        let bytes = std::fs::read(&p).unwrap();
+        for cut in [3, 6, 11, 40, bytes.len() - 1] {
+            std::fs::write(&p, &bytes[..cut]).unwrap();
+            assert_eq!(Library::load(&p).unwrap_err().code(), "library_malformed", "{cut}");
+        }
+        let mut longer = bytes.clone();
+        longer.push(0);
+        std::fs::write(&p, &longer).unwrap();
+        assert_eq!(Library::load(&p).unwrap_err().code(), "library_malformed");
+        let mut huge = bytes.clone();
+        huge[8..12].copy_from_slice(&u32::MAX.to_le_bytes());
+        std::fs::write(&p, &huge).unwrap();
+        assert_eq!(Library::load(&p).unwrap_err().code(), "library_malformed");
     }
 }
