@@ -289,7 +289,15 @@ def build():
     add("gltf_asset_version_1.gltf", gltf_text(variant(lambda d: d["asset"].update(version="1.0"))),
         "unsupported_version", "asset.version 1.0")
     add("gltf_asset_missing.gltf", gltf_text(variant(lambda d: d.pop("asset"))),
-        "unsupported_version", "no asset object (so no version)")
+        "missing_asset", "no asset object (so no version)")
+    add("glb_asset_missing.glb", glb(variant(lambda d: d.pop("asset")), BASE_BIN),
+        "missing_asset", "GLB whose JSON has no asset object")
+    add("gltf_asset_no_version.gltf", gltf_text(variant(lambda d: d["asset"].pop("version"))),
+        "missing_asset", "asset without a version")
+    add("gltf_asset_version_number.gltf", gltf_text(variant(lambda d: d["asset"].update(version=2.0))),
+        "missing_asset", "asset.version is a number, not a string")
+    add("gltf_asset_not_object.gltf", gltf_text(variant(lambda d: d.update(asset="2.0"))),
+        "missing_asset", "asset is a string")
     add("gltf_wrong_field_type.gltf", gltf_text(variant(lambda d: d.update(nodes={"0": {}}))),
         "gltf_invalid", "nodes is an object instead of an array")
 
@@ -334,7 +342,47 @@ def build():
     add("acc_stride_too_small.glb", glb(variant(lambda d: d["bufferViews"][0].update(byteStride=4)), BASE_BIN),
         "gltf_invalid", "byteStride 4 for a 12-byte VEC3 element")
     add("acc_stride_huge.glb", glb(variant(lambda d: d["bufferViews"][0].update(byteStride=2**63)), BASE_BIN),
-        "accessor_out_of_bounds", "byteStride 2^63: stride x count overflows 64-bit math")
+        "bad_byte_stride", "byteStride 2^63: stride x count would overflow 64-bit math")
+    # --- what glTF 2.0 forbids and a lenient reader would read anyway -----------------
+    for stride in (13, 256, 2, 0, 254, 1 << 20):
+        add(f"spec_stride_{stride}.glb",
+            glb(variant(lambda d, s=stride: d["bufferViews"][0].update(byteStride=s)), BASE_BIN),
+            "bad_byte_stride", f"byteStride {stride}: glTF allows multiples of 4 from 4 to 252")
+    add("spec_acc_offset_unaligned.glb",
+        glb(variant(lambda d: acc(d, 0).update(byteOffset=2, count=7)), BASE_BIN),
+        "misaligned_accessor", "float POSITION accessor at byteOffset 2")
+    add("spec_view_offset_unaligned.glb",
+        glb(variant(lambda d: d["bufferViews"][0].update(byteOffset=2)), BASE_BIN),
+        "misaligned_accessor", "the POSITION bufferView starts at byte 2: ordinary data, floats off by 2 bytes")
+    add("spec_indices_offset_odd.glb",
+        glb(variant(lambda d: acc(d, 2).update(byteOffset=1, count=35)), BASE_BIN),
+        "misaligned_accessor", "u16 indices at byteOffset 1")
+    add("spec_normal_offset_unaligned.glb",
+        glb(variant(lambda d: acc(d, 1).update(byteOffset=1, count=7)), BASE_BIN),
+        "misaligned_accessor", "float NORMAL accessor at byteOffset 1")
+    add("spec_weights_offset_unaligned.glb",
+        glb(variant(lambda d: acc(d, 4).update(byteOffset=2, count=7)), BASE_BIN),
+        "misaligned_accessor", "float WEIGHTS_0 accessor at byteOffset 2")
+    add("spec_ibm_offset_unaligned.glb",
+        glb(variant(lambda d: acc(d, 5).update(byteOffset=6, count=1)), BASE_BIN),
+        "misaligned_accessor", "float inverse bind matrices at byteOffset 6")
+    for ct, name in ((5121, "ubyte"), (5120, "byte"), (5123, "ushort"), (5122, "short")):
+        add(f"spec_position_{name}_unquantized.glb",
+            glb(variant(lambda d, ct=ct: acc(d, 0).update(componentType=ct)), BASE_BIN),
+            "unsupported_component_type", f"POSITION as {name} without KHR_mesh_quantization in extensionsUsed")
+    add("spec_normal_byte_unquantized.glb",
+        glb(variant(lambda d: acc(d, 1).update(componentType=5120, normalized=True)), BASE_BIN),
+        "unsupported_component_type", "NORMAL as normalized byte without KHR_mesh_quantization")
+    add("spec_indices_signed_short.glb",
+        glb(variant(lambda d: acc(d, 2).update(componentType=5122)), BASE_BIN),
+        "unsupported_component_type", "indices as signed short")
+    add("spec_indices_signed_byte.glb",
+        glb(variant(lambda d: acc(d, 2).update(componentType=5120)), BASE_BIN),
+        "unsupported_component_type", "indices as signed byte")
+    for ext in ("EXT_made_up", "KHR_mesh_gpu_instancing", "KHR_animation_pointer", "ADOBE_materials_thin_transparency", ""):
+        add(f"spec_required_{ext or 'empty_name'}.glb",
+            glb(variant(lambda d, e=ext: d.update(extensionsUsed=[e], extensionsRequired=[e])), BASE_BIN),
+            "unsupported_required_extension", f"extensionsRequired names {ext!r}, which rigserve does not read")
     add("acc_count_u32_max.glb", glb(variant(lambda d: acc(d, 0).update(count=2**32 - 1)), BASE_BIN),
         "too_many_vertices", "POSITION count u32::MAX: refused before allocation")
     add("acc_count_2pow53.glb", glb(variant(lambda d: acc(d, 0).update(count=2**53)), BASE_BIN),
@@ -358,7 +406,7 @@ def build():
     add("acc_position_vec2.glb", glb(variant(lambda d: acc(d, 0).update(type="VEC2")), BASE_BIN),
         "gltf_invalid", "POSITION of type VEC2")
     add("acc_indices_float.glb", glb(variant(lambda d: acc(d, 2).update(componentType=5126, count=18)), BASE_BIN),
-        "gltf_invalid", "indices stored as float")
+        "unsupported_component_type", "indices stored as float")
     add("acc_indices_normalized.glb", glb(variant(lambda d: acc(d, 2).update(normalized=True)), BASE_BIN),
         "gltf_invalid", "indices accessor with normalized: true (forbidden; would read as 0 or 1)")
 
@@ -379,6 +427,16 @@ def build():
         d["buffers"][0]["byteLength"] = off + 16 * len(indices)
         return BASE_BIN + extra
 
+    d = copy.deepcopy(BASE_DOC)
+    b = sparse(d, 2, [1, 2])
+    acc(d, 0)["sparse"]["values"]["byteOffset"] = 2
+    add("spec_sparse_values_unaligned.glb", glb(d, b), "misaligned_accessor",
+        "sparse POSITION values at byteOffset 2")
+    d = copy.deepcopy(BASE_DOC)
+    b = sparse(d, 2, [1, 2])
+    acc(d, 0)["sparse"]["indices"]["byteOffset"] = 1
+    add("spec_sparse_indices_unaligned.glb", glb(d, b), "misaligned_accessor",
+        "sparse u32 indices at byteOffset 1")
     d = copy.deepcopy(BASE_DOC)
     b = sparse(d, 2, [1, 1000])
     add("acc_sparse_index_oob.glb", glb(d, b), "index_out_of_range",
@@ -666,7 +724,7 @@ def build():
     add("zip_header.zip", b"PK\x03\x04\x14\0\0\0\x08\0" + b"\0" * 20 + b"model.glb", "unknown_format",
         "ZIP local file header")
     add("nul_bytes.bin", b"\0" * 64, "unknown_format", "64 NUL bytes")
-    add("json_text_not_gltf.gltf", b'{"hello": "world"}', "unsupported_version",
+    add("json_text_not_gltf.gltf", b'{"hello": "world"}', "missing_asset",
         "a JSON object that is not glTF")
 
     # --- ground-truth extraction ----------------------------------------------------------

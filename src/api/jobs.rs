@@ -141,7 +141,7 @@ pub async fn submit(
     let bytes = up.bytes.clone();
     let needs_own_skeleton = options.skin_only && options.skeleton.is_none();
     let skin_only = options.skin_only;
-    let format = tokio::task::spawn_blocking(move || {
+    let checked = tokio::task::spawn_blocking(move || {
         let asset = crate::mesh::load(&bytes, &limits)?;
         if let Some(skel) = &given {
             check_placement(skel, &asset.mesh, skin_only)?;
@@ -167,7 +167,10 @@ pub async fn submit(
             "internal_error",
             e.to_string(),
         )
-    })??;
+    });
+    // The parsed mesh is dropped, refused or not: its pages go back now.
+    crate::jobs::memory::give_back_async().await;
+    let format = checked??;
 
     let hash = payload_hash(&up.bytes, &options);
     let job = NewJob {

@@ -7,6 +7,7 @@
 
 pub mod blobs;
 pub mod events;
+pub mod memory;
 pub mod metrics;
 pub mod model;
 pub mod pipeline;

@@ -92,6 +92,8 @@ impl Worker {
                 Ok(Some(job)) => {
                     let span = tracing::info_span!("job", job_id = %job.id, worker = %self.id);
                     self.run_job(job).instrument(span).await;
+                    // The job's upload, meshes and result are dropped by now.
+                    super::memory::give_back_async().await;
                     continue;
                 }
                 Ok(None) => {}

@@ -42,6 +42,20 @@ pub enum MeshError {
     BadHierarchy(String),
     #[error("OBJ line {line}: {msg}")]
     Obj { line: usize, msg: String },
+    #[error("the glTF JSON holds more than {cap} values")]
+    JsonTooComplex { cap: usize },
+    #[error("a glTF JSON string or member name is {len} bytes, over the cap of {cap}")]
+    StringTooLong { len: usize, cap: usize },
+    #[error("the glTF JSON has no `asset` (glTF 2.0 requires one, with a version)")]
+    MissingAsset,
+    #[error("{0}")]
+    MisalignedAccessor(String),
+    #[error("{0}")]
+    BadByteStride(String),
+    #[error("the extension {0} is listed in extensionsRequired and rigserve does not read it")]
+    UnsupportedRequiredExtension(String),
+    #[error("{0}")]
+    BadComponentType(String),
 }
 
 impl MeshError {
@@ -67,6 +81,13 @@ impl MeshError {
             Degenerate => "degenerate_mesh",
             BadHierarchy(_) => "bad_hierarchy",
             Obj { .. } => "obj_invalid",
+            JsonTooComplex { .. } => "gltf_json_too_complex",
+            StringTooLong { .. } => "gltf_string_too_long",
+            MissingAsset => "missing_asset",
+            MisalignedAccessor(_) => "misaligned_accessor",
+            BadByteStride(_) => "bad_byte_stride",
+            UnsupportedRequiredExtension(_) => "unsupported_required_extension",
+            BadComponentType(_) => "unsupported_component_type",
         }
     }
 }

@@ -217,10 +217,15 @@ pub fn parse_document(
     bin: Option<&[u8]>,
     limits: &Limits,
 ) -> Result<Document, MeshError> {
-    let json: Value =
-        serde_json::from_slice(json_bytes).map_err(|e| MeshError::Json(e.to_string()))?;
+    let json = super::json::parse(json_bytes)?;
     if !json.is_object() {
         return Err(MeshError::Json("the top level is not an object".into()));
+    }
+    if !json
+        .get("asset")
+        .is_some_and(|a| a.get("version").is_some_and(Value::is_string))
+    {
+        return Err(MeshError::MissingAsset);
     }
     // Deserialised from a borrow: a clone of the tree would double the peak memory
     // of a JSON-heavy upload.
@@ -234,6 +239,7 @@ pub fn parse_document(
             return Err(MeshError::UnsupportedExtension(ext.clone()));
         }
     }
+    super::conform::check(&root)?;
     for prim in root.meshes.iter().flat_map(|m| &m.primitives) {
         if let Some(exts) = &prim.extensions {
             if let Some(name) = exts
@@ -362,7 +368,7 @@ fn decode_data_uri(uri: &str, limits: &Limits) -> Result<Vec<u8>, MeshError> {
 }
 
 /// Component layout of an accessor element.
-fn type_components(kind: &str) -> Option<usize> {
+pub(super) fn type_components(kind: &str) -> Option<usize> {
     Some(match kind {
         "SCALAR" => 1,
         "VEC2" => 2,
@@ -375,7 +381,7 @@ fn type_components(kind: &str) -> Option<usize> {
     })
 }
 
-fn component_size(ct: u32) -> Option<usize> {
+pub(super) fn component_size(ct: u32) -> Option<usize> {
     Some(match ct {
         5120 | 5121 => 1,
         5122 | 5123 => 2,

@@ -3,8 +3,10 @@
 //! Inference sees all primitives merged; export needs to write weights back into the
 //! primitives they came from, so each merged range remembers its source in a [`Part`].
 
+mod conform;
 mod error;
 pub mod gltf;
+mod json;
 mod normalize;
 mod obj;
 pub mod sample;
