@@ -178,4 +178,33 @@ fn eval_figures_of_the_committed_tree_match_the_working_tree() {
         here["used"]
     );
     assert!(here["per_artist"].as_object().is_some_and(|m| !m.is_empty()));
+    // What the README states is what the committed tree measures.
+    let (j2j, j2b, b2b) = readme_dev_figures();
+    let sk = &there["overall"]["skeleton"];
+    for (name, stated) in [("cd_j2j", j2j), ("cd_j2b", j2b), ("cd_b2b", b2b)] {
+        let measured = sk[name].as_f64().unwrap();
+        assert!(
+            (measured - stated).abs() < 0.00006,
+            "README states dev {name} {stated}, the committed tree measures {measured:.5}"
+        );
+    }
+}
+
+/// The dev row of the README's skeleton table (the one under `<!-- figures: skeleton -->`).
+fn readme_dev_figures() -> (f64, f64, f64) {
+    let readme = std::fs::read_to_string(repo().join("README.md")).unwrap();
+    let table = readme
+        .split("<!-- figures: skeleton -->")
+        .nth(1)
+        .expect("README has the skeleton figures table");
+    let row = table
+        .lines()
+        .find(|l| l.starts_with("| dev"))
+        .expect("a dev row");
+    let cells: Vec<f64> = row
+        .split('|')
+        .filter_map(|c| c.trim().parse().ok())
+        .collect();
+    assert!(cells.len() >= 3, "{row}");
+    (cells[0], cells[1], cells[2])
 }
