@@ -110,4 +110,12 @@ SOURCES = [
     # --- XR ---
     S("GodotVR/godot-xr-tools", "CC0-1.0", "DigitalN8m4r3 (Godot XR Tools hands)", include=r"hands/model/", default_cat="other_creature"),
     # pmndrs/market-assets: Kenney/others, but every model is Draco-compressed (not decodable here)
+    S("blert2112/mobs_more_monsters", None, None, per=[
+        (r"mobs_senderman/", "WTFPL", "Devyn Collier Johnson (mobs_senderman)"),
+        (r"mobs_yeti/", "MIT", "Krupnov Pavel (mobs_more_animals)"),
+        (r"mobs_(pumpking|sandworm)/", "GPL-3.0", "mobs_more_monsters"),
+        (r"mobs_(creeper|zombie)/", "unknown", "unknown")],
+      cat=[(r"sender_man|character", "humanoid_creature")]),
+    S("Poikilos/mobs_robot_dystopia", "CC-BY-SA-3.0", "MirceaKitsune/stujones11 derivatives (mobs_robot_dystopia)",
+      cat=[(r"tailstheanimatronic", "robot_prop"), (r"zombie|drillers", "humanoid_creature")]),
 ]
