@@ -404,9 +404,7 @@ impl Application {
                 token.cancel();
             }
         });
-        let served = axum::serve(self.listener, self.router)
-            .with_graceful_shutdown(token.clone().cancelled_owned())
-            .await;
+        let served = crate::api::listener::serve(self.listener, self.router, token.clone()).await;
         token.cancel();
         for t in self.tasks {
             let _ = t.await;

@@ -6,7 +6,9 @@ pub mod error;
 pub mod events;
 pub mod health;
 pub mod jobs;
+pub mod listener;
 pub mod metrics;
+pub mod refusals;
 pub mod rig;
 pub mod upload;
 pub mod viewer;
@@ -107,6 +109,7 @@ pub fn health_router(state: AppState, http: HttpMetrics) -> Router {
         .route("/readyz", get(health::readyz))
         .route("/metrics", get(health::metrics))
         .fallback(no_route)
+        .layer(axum::middleware::from_fn(refusals::json_errors))
         .layer(axum::middleware::from_fn_with_state(http, metrics::track))
         .with_state(state)
 }
@@ -144,6 +147,8 @@ pub fn router(state: AppState, http: HttpMetrics) -> Router {
         .fallback(no_route)
         .method_not_allowed_fallback(wrong_method)
         .layer(body_limit)
+        .layer(axum::middleware::from_fn(refusals::json_errors))
+        .layer(axum::middleware::from_fn(refusals::http_limits))
         .layer(axum::middleware::from_fn_with_state(http, metrics::track))
         .layer(CatchPanicLayer::custom(panic_response))
         .layer(

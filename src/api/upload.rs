@@ -44,10 +44,9 @@ fn media_type(v: &str) -> String {
 
 /// Streams `chunks` into a temporary file in `tmp_dir`, refusing more than `limit` bytes,
 /// and reads the whole file back.
-async fn spool<S, E>(mut chunks: S, limit: u64, tmp_dir: &Path) -> Result<Bytes, ApiError>
+async fn spool<S>(mut chunks: S, limit: u64, tmp_dir: &Path) -> Result<Bytes, ApiError>
 where
-    S: Stream<Item = Result<Bytes, E>> + Unpin,
-    E: std::fmt::Display,
+    S: Stream<Item = Result<Bytes, ApiError>> + Unpin,
 {
     let tmp = tempfile::NamedTempFile::new_in(tmp_dir).map_err(|e| {
         ApiError::new(
@@ -66,9 +65,7 @@ where
     let mut file = tokio::fs::File::from_std(tmp.reopen().map_err(io_err)?);
     let mut total = 0u64;
     while let Some(chunk) = chunks.next().await {
-        let chunk = chunk.map_err(|e| {
-            ApiError::bad_request("upload_interrupted", format!("reading the upload: {e}"))
-        })?;
+        let chunk = chunk?;
         total += chunk.len() as u64;
         if total > limit {
             return Err(too_large(limit));
@@ -109,7 +106,8 @@ pub async fn read(req: Request<Body>, limit: u64, tmp_dir: &Path) -> Result<Uplo
     if declared.as_deref() != Some("multipart/form-data") {
         // A wrong type is refused before a byte of the body is read.
         declared_format(declared.as_deref())?;
-        let bytes = spool(req.into_body().into_data_stream(), limit, tmp_dir).await?;
+        let chunks = req.into_body().into_data_stream().map(|c| c.map_err(interrupted));
+        let bytes = spool(chunks, limit, tmp_dir).await?;
         return Ok(Upload {
             bytes,
             content_type: declared,
@@ -141,7 +139,7 @@ pub async fn read(req: Request<Body>, limit: u64, tmp_dir: &Path) -> Result<Uplo
                     match f.chunk().await {
                         Ok(Some(c)) => Some((Ok(c), f)),
                         Ok(None) => None,
-                        Err(e) => Some((Err(e), f)),
+                        Err(e) => Some((Err(multipart_error(e, limit)), f)),
                     }
                 }));
                 upload.bytes = spool(chunks, limit, tmp_dir).await?;
@@ -173,11 +171,18 @@ pub async fn read(req: Request<Body>, limit: u64, tmp_dir: &Path) -> Result<Uplo
     Ok(upload)
 }
 
+fn interrupted(e: impl std::fmt::Display) -> ApiError {
+    ApiError::bad_request("upload_interrupted", format!("reading the upload: {e}"))
+}
+
+/// The form's own fault (a missing closing boundary, broken part headers) is
+/// `multipart_invalid`; the body failing to arrive (axum reports it as a 500: the
+/// connection's fault, not the form's) is `upload_interrupted`.
 fn multipart_error(e: axum::extract::multipart::MultipartError, limit: u64) -> ApiError {
-    if e.status() == StatusCode::PAYLOAD_TOO_LARGE {
-        too_large(limit)
-    } else {
-        ApiError::bad_request("multipart_invalid", e.body_text())
+    match e.status() {
+        StatusCode::PAYLOAD_TOO_LARGE => too_large(limit),
+        StatusCode::BAD_REQUEST => ApiError::bad_request("multipart_invalid", e.body_text()),
+        _ => interrupted(e.body_text()),
     }
 }
 

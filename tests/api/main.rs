@@ -6,6 +6,7 @@ mod helpers;
 #[path = "../cluster/infra.rs"]
 mod infra;
 mod openapi;
+mod refusals;
 mod restart;
 
 use helpers::*;
