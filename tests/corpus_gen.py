@@ -504,7 +504,8 @@ def build():
         }
 
     add("ext_draco_required.glb", glb(variant(draco), BASE_BIN),
-        "unsupported_extension", "KHR_draco_mesh_compression in extensionsRequired")
+        "compressed_data_invalid",
+        "KHR_draco_mesh_compression in extensionsRequired, its bufferView plain floats, not a Draco stream")
 
     def meshopt(d):
         d["extensionsUsed"] = ["EXT_meshopt_compression"]
@@ -514,10 +515,12 @@ def build():
         }
 
     add("ext_meshopt.glb", glb(variant(meshopt), BASE_BIN),
-        "unsupported_extension", "EXT_meshopt_compression bufferView compression")
+        "compressed_data_invalid",
+        "EXT_meshopt_compression bufferView whose compressed bytes are plain floats")
     add("ext_draco_primitive_only.glb",
         glb(variant(lambda d: prim(d).update(extensions={"KHR_draco_mesh_compression": {}})), BASE_BIN),
-        "unsupported_extension", "Draco extension on a primitive without being declared")
+        "compressed_data_invalid",
+        "Draco extension on a primitive without being declared, with no bufferView")
 
     # --- geometry -------------------------------------------------------------------------
     nan = struct.pack("<f", float("nan"))

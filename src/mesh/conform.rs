@@ -11,6 +11,9 @@ use super::MeshError;
 /// to the output untouched (materials, textures, lights, avatar metadata).
 const UNDERSTOOD: &[&str] = &[
     "KHR_mesh_quantization",
+    "KHR_draco_mesh_compression",
+    "EXT_meshopt_compression",
+    "KHR_meshopt_compression",
     "KHR_texture_transform",
     "KHR_texture_basisu",
     "EXT_texture_webp",

@@ -22,7 +22,7 @@ pub enum MeshError {
     AccessorOutOfBounds(usize),
     #[error("external reference {0:?} refused: rigserve never fetches URIs; embed the data (GLB or data: URIs)")]
     ExternalUri(String),
-    #[error("the extension {0} is required but not supported (decompress the file first)")]
+    #[error("the extension {0} is not supported")]
     UnsupportedExtension(String),
     #[error("glTF version {0:?} is not supported (2.x only)")]
     UnsupportedVersion(String),
@@ -56,6 +56,8 @@ pub enum MeshError {
     UnsupportedRequiredExtension(String),
     #[error("{0}")]
     BadComponentType(String),
+    #[error("compressed glTF data does not decode: {0}")]
+    CompressedDataInvalid(String),
 }
 
 impl MeshError {
@@ -88,6 +90,7 @@ impl MeshError {
             BadByteStride(_) => "bad_byte_stride",
             UnsupportedRequiredExtension(_) => "unsupported_required_extension",
             BadComponentType(_) => "unsupported_component_type",
+            CompressedDataInvalid(_) => "compressed_data_invalid",
         }
     }
 }

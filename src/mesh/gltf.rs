@@ -13,13 +13,6 @@ const GLB_MAGIC: &[u8; 4] = b"glTF";
 const CHUNK_JSON: u32 = 0x4E4F_534A;
 const CHUNK_BIN: u32 = 0x004E_4942;
 
-/// Extensions that change how geometry must be decoded; we cannot read around them.
-const COMPRESSION_EXTENSIONS: &[&str] = &[
-    "KHR_draco_mesh_compression",
-    "EXT_meshopt_compression",
-    "KHR_meshopt_compression",
-];
-
 #[derive(Debug, Default, Deserialize)]
 #[serde(rename_all = "camelCase", default)]
 pub struct Root {
@@ -234,22 +227,7 @@ pub fn parse_document(
     if !root.asset.version.starts_with("2.") {
         return Err(MeshError::UnsupportedVersion(root.asset.version.clone()));
     }
-    for ext in root.extensions_required.iter().chain(&root.extensions_used) {
-        if COMPRESSION_EXTENSIONS.contains(&ext.as_str()) {
-            return Err(MeshError::UnsupportedExtension(ext.clone()));
-        }
-    }
     super::conform::check(&root)?;
-    for prim in root.meshes.iter().flat_map(|m| &m.primitives) {
-        if let Some(exts) = &prim.extensions {
-            if let Some(name) = exts
-                .keys()
-                .find(|k| COMPRESSION_EXTENSIONS.contains(&k.as_str()))
-            {
-                return Err(MeshError::UnsupportedExtension(name.clone()));
-            }
-        }
-    }
     // Image URIs are left untouched and never fetched: geometry does not need them, and
     // an export that keeps the relative name lets the user keep the texture beside it.
     // Only absolute remote URIs are refused, since keeping them would point clients at
@@ -265,6 +243,16 @@ pub fn parse_document(
     let mut total: u64 = 0;
     for (i, buf) in root.buffers.iter().enumerate() {
         let data = match &buf.uri {
+            // Filled by decoding (see `super::meshopt`); counted against the cap first.
+            None if super::meshopt::is_fallback(&json, i) => {
+                if total.saturating_add(buf.byte_length) > limits.max_bytes {
+                    return Err(MeshError::TooLarge {
+                        size: total.saturating_add(buf.byte_length),
+                        cap: limits.max_bytes,
+                    });
+                }
+                vec![0; buf.byte_length as usize]
+            }
             None if i == 0 => bin
                 .ok_or_else(|| {
                     MeshError::Invalid("buffer 0 has no uri and there is no BIN chunk".into())
@@ -289,6 +277,50 @@ pub fn parse_document(
         }
         buffers.push(data);
     }
+    decompress(json, root, buffers, limits)
+}
+
+/// Decodes meshopt views and Draco primitives into the document (see `super::meshopt`
+/// and `super::draco`), so that what is read and exported is a plain glTF.
+fn decompress(
+    mut json: Value,
+    root: Root,
+    mut buffers: Vec<Vec<u8>>,
+    limits: &Limits,
+) -> Result<Document, MeshError> {
+    let meshopt = super::meshopt::used(&json);
+    let draco = super::draco::used(&json);
+    if !meshopt && !draco {
+        return Ok(Document {
+            json,
+            root,
+            buffers,
+        });
+    }
+    drop(root);
+    // meshopt first: a Draco stream may sit in a meshopt-compressed view.
+    if meshopt {
+        super::meshopt::decode(&mut json, &mut buffers)?;
+    }
+    if draco {
+        super::draco::decode(&mut json, &mut buffers, limits)?;
+    }
+    let gone: &[&str] = &[
+        super::draco::NAME,
+        super::meshopt::NAMES[0],
+        super::meshopt::NAMES[1],
+    ];
+    for key in ["extensionsUsed", "extensionsRequired"] {
+        if let Some(list) = json.get_mut(key).and_then(Value::as_array_mut) {
+            list.retain(|e| !e.as_str().is_some_and(|e| gone.contains(&e)));
+            if list.is_empty() {
+                json.as_object_mut().map(|o| o.remove(key));
+            }
+        }
+    }
+    let root = Root::deserialize(&json).map_err(|e| MeshError::Invalid(e.to_string()))?;
+    check_shape(&json, root.buffers.len())?;
+    super::conform::check(&root)?;
     Ok(Document {
         json,
         root,

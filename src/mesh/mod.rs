@@ -4,9 +4,11 @@
 //! primitives they came from, so each merged range remembers its source in a [`Part`].
 
 mod conform;
+mod draco;
 mod error;
 pub mod gltf;
 mod json;
+mod meshopt;
 mod normalize;
 mod obj;
 pub mod sample;
