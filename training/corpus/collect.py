@@ -35,7 +35,10 @@ def read_tsv(path):
 
 
 def git_dir(mirrors, repo):
-    return os.path.join(mirrors, repo.replace("/", "+"), "repo")
+    """The bare git dir of a mirror: <mirrors>/<owner>+<name>/repo, or repo/.git where the
+    snapshot arrived as a work tree."""
+    gd = os.path.join(mirrors, repo.replace("/", "+"), "repo")
+    return os.path.join(gd, ".git") if os.path.isdir(os.path.join(gd, ".git")) else gd
 
 
 def git_show(gd, commit, path):

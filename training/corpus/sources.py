@@ -118,4 +118,28 @@ SOURCES = [
       cat=[(r"sender_man|character", "humanoid_creature")]),
     S("Poikilos/mobs_robot_dystopia", "CC-BY-SA-3.0", "MirceaKitsune/stujones11 derivatives (mobs_robot_dystopia)",
       cat=[(r"tailstheanimatronic", "robot_prop"), (r"zombie|drillers", "humanoid_creature")]),
+    # --- round 2 (see REPORT.md) ---
+    S("ronrob-lu/mobs_andes", "CC-BY-SA-4.0", "ronrob-lu (mobs_andes)", include=r"^models/", default_cat="quadruped"),
+    S("ronrob-lu/mobs_npc_monster", "CC0-1.0", "Kenney", include=r"^models/", default_cat="humanoid"),  # LICENSE.md: assets CC0 by Kenney
+    S("0ADMods/A-Mythology-mod-f-or-0-A.D.", "CC-BY-SA-3.0", "A Mythology mod for 0 A.D.", include=r"^art/meshes/skeletal/",
+      cat=[(r"centaur|minotaur", "humanoid_creature"), (r"fenrir", "quadruped")]),  # art/LICENSE.txt
+    S("BlockySurvival/mobs_bls", "CC-BY-SA-4.0", "Team NPX (NSSM models, mobs_bls)", default_cat="other_creature"),  # LICENSE: models CC BY-SA 4.0
+    S("poikilos/mobs_dirt_monster_smooth", "MIT", "poikilos (mobs_dirt_monster_smooth)", default_cat="humanoid_creature"),
+    S("N-nec/mobs_zombie", "CC-BY-SA-4.0", "N-nec (mobs_zombie)", cat=[(r"slug", "fish_snake_tail")], default_cat="humanoid_creature"),  # LICENSE-CC-BY-SA for media
+    S("gdquest-demos/godot-4-FPS-arms", "CC-BY-4.0", "GDQuest", include=r"fps_arms\.glb$", default_cat="other_creature"),  # readme: art CC-By 4.0
+    S("gdquest-demos/godot-demos-2022", "MIT", "GDQuest", include=r"Player3D/astronaut\.gltf$", default_cat="humanoid"),  # LICENSE (MIT) covers the repo
+    S("SystemError89/mobs_stoneage", None, None, per=[  # README: Extreme Survival mobs, WTFPL; Mesh by Morn76 / Pavel_S for the mobs_animal ones
+        (r"mob_bear|st_cat|mobs_deer2|mobs_medved", "WTFPL", "Extreme Survival mobs (maikerumine)")]),
+    S("minenux/minetest-mod-mobs_jam", None, None, per=[(r".", "MIT", "Krupnov Pavel (mobs_more_animals)")]),  # license.txt: all K Pavel models MIT
+    S("jordan4ibanez/open_ai", None, None, per=[  # models/models-license.md
+        (r"models/(equine2|sheeptest|fishtest)\.b3d$", "CC-BY-SA-3.0", "FreeLikeGNU (open_ai models)")],
+      cat=[(r"fishtest", "fish_snake_tail"), (r"equine|sheep", "quadruped")]),
+    S("AiTechEye/aliveai", "CC0-1.0", "AiTechEye (aliveai)", cat=[(r"spider", "robot_prop")]),  # README: code LGPL-2.1, media CC0
+    S("minetest-LOTR/Lord-of-the-Test", None, None, include=r"^mods/lottmobs/models/", per=[  # mods/lottmobs/license.txt, media authors
+        (r"/(ent_model|mobs_bunny|ringwraith_model|shirepony_model|shireponyh1_model|spider_model|chicken_model)\.", "CC-BY-SA-3.0", "AspireMint (lottmobs)"),
+        (r"/(mobs_rat|mobs_sheep|mobs_sheep_shaved|troll_model)\.", "WTFPL", "Pavel_S (PilzAdam mobs)"),
+        (r"/balrog_model\.", "CC-BY-SA-3.0", "STHGOM (lottmobs balrog)"),
+        (r"/(mobs_pumba|horse_model|horseh1_model)\.", "MIT", "Krupnov Pavel (mobs_more_animals)"),
+        (r"/warg(_mount)?\.", "CC-BY-SA-3.0", "fishyWET (lottmobs)")],
+      cat=[(r"ent_model|troll|balrog|ringwraith", "humanoid_creature"), (r"pony|warg|pumba", "quadruped")]),
 ]
