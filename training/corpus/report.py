@@ -13,7 +13,7 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 
 NOTES = """## Status against issue 45 (read this first)
 
-The goal was >= 400 rows from >= 25 artists. This pass reached far fewer (see the top of
+The goal was >= 400 rows from >= 25 artists. Two passes reached far fewer (see the top of
 this file): the pipeline is complete and reproducible, the yield is not. Why:
 
 - **The evaluation sets were built from the same obvious places.** `check.py --repo` reports
@@ -73,12 +73,47 @@ library did not compile at the time because of other engineers' uncommitted work
 every file, and its bone counts equal the manifest's `joints` for every row. `rigserve
 dataset` turned all rows into items.
 
-### Next sources worth a try (not done for lack of time)
+### Round 2 (second pass, about 2 hours): what was tried
 
+Added: 0ADMods/A-Mythology-mod (0 A.D. skeletal .dae: assimp converts 0 A.D. COLLADA
+cleanly, 45-72 joints), BlockySurvival/mobs_bls (NSSM models, CC BY-SA 4.0: 9 clear, 20 HELD
+OUT), minetest-LOTR/Lord-of-the-Test (lottmobs, per-file authors in its license.txt),
+N-nec/mobs_zombie, jordan4ibanez/open_ai and minetest-mods-camp/witches (FreeLikeGNU),
+poikilos/mobs_dirt_monster_smooth, SystemError89/mobs_stoneage, GDQuest FPS arms and
+astronaut, minenux/mobs_jam (all copies). The larger total also let capped rows back in
+(Kenney, XR hands). `collect.git_dir` now accepts snapshots that arrive as `repo/.git`.
+
+Dead ends (so nobody repeats them):
+- **HELD OUT repositories** found this round: MultiCraft/repixture, berengma/water_life,
+  pandorabox-io/mobs_xenomorph, gdquest-demos/godot-4-3D-Characters.
+- **Git LFS**: 0 A.D. forks under 500 MB (TaoJiaHengOne/0ad) hold LFS pointers for every
+  .dae; Hubs-Foundation/hubs-avatar-pipelines likewise.
+- **Over 500 MB**: 0ADMods/pre-colonial-mod (750 MB), millenniumad (1.1 GB), terra_magna
+  (538 MB), PolygonalMind/initiative-opensource-release (860 MB, CC0 character packs),
+  ToxSam/cc0-models-Polygonal-Mind (555 MB), UnityTechnologies/open-project-1 (2.4 GB,
+  Apache), other 0ad forks (2-6 GB).
+- **No rig**: ronrob-lu/mobs_andes and ronrob-lu/mobs_npc_monster (Kenney) glTF/GLB are
+  unskinned; Skandarella/animalworld is one flat, unparented bone per cuboid (no skeleton
+  hierarchy: not worth baking into skins); Skandarella/marinara has no models.
+- **Licence**: 0ADMods/ponies-ascendant (credits, no licence), MisterE123/mobs_creatures-mobkit
+  (GPLv3), DokimiCU/mobs_war (no licence), SystemError89/mobs_modern (models copied from
+  GPL mobs_mc), scrain777/mobs_humans (EUPL, models unstated), pmndrs/market-assets (no
+  licence file in the snapshot).
+- **No snapshot**: sapier/animals_modpack, KrupnoPavel/kpgmobs, DokimiCU/exile,
+  FreeLikeGNU/witches (the minetest-mods-camp copy works), FreeLikeGNU/dwarves,
+  ronrob-lu/mobs_mini_animals, ronrob-lu/mobs_chaos_npcs, mt-mods/mobs_ghost_redo.
+- Most small Luanti mob mods re-ship mobs_animal / mobs_monster / NSSM / dmobs models, which
+  come back as copies of ../shared/rigs, HELD OUT or duplicates: about 1-5 new rows per mod.
+
+### Next sources worth a try
+
+- 0 A.D. art without LFS: a 0 A.D. mod under 500 MB with `art/meshes/skeletal/*.dae`
+  (assimp handles them; 0 A.D. art is CC BY-SA 3.0, many distinct animal skeletons);
+- Polygonal Mind CC0 character packs from a smaller fork or subset;
+- Draco decoding works with `npm install --prefix /tmp/gt @gltf-transform/cli` (installs
+  fine here); pmndrs/market-assets still needs a stated licence;
 - an IQM reader (Red Eclipse players, janitor, drones: CC BY-SA 4.0);
-- a Draco decoder (pmndrs/market-assets: 9 skinned, Kenney and MarkLaBarr);
-- Rocketbox subsets or forks under 500 MB (MIT); KhronosGroup glTF-Sample-Models subsets;
-- more Luanti mods with stated permissive model licences (check `--repo` first: cheap).
+- Rocketbox subsets or forks under 500 MB (MIT).
 """
 
 

@@ -142,4 +142,6 @@ SOURCES = [
         (r"/(mobs_pumba|horse_model|horseh1_model)\.", "MIT", "Krupnov Pavel (mobs_more_animals)"),
         (r"/warg(_mount)?\.", "CC-BY-SA-3.0", "fishyWET (lottmobs)")],
       cat=[(r"ent_model|troll|balrog|ringwraith", "humanoid_creature"), (r"pony|warg|pumba", "quadruped")]),
+    S("minetest-mods-camp/witches", "CC-BY-SA-3.0", "FreeLikeGNU (open_ai models)", include=r"models/witches_(witch|sheep)\.b3d$",  # README: media licences
+      cat=[(r"witch\.b3d", "humanoid"), (r"sheep", "quadruped")]),
 ]
