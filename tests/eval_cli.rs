@@ -328,3 +328,52 @@ fn the_library_lends_a_siblings_skeleton_but_never_the_scored_files_own() {
     assert!(!out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains("no rig of split lib"));
 }
+
+/// `eval --rotate` turns a data set as a Z-up export or a mesh lying on its side would
+/// arrive; `--up` naming the axis that is up then rigs it exactly as upright (a turn is an
+/// axis permutation, undone exactly), and `--up auto` finds that axis for these humanoids.
+/// Shipped models and library, four dev humanoids.
+#[test]
+fn a_turned_data_set_rigs_as_upright_when_its_up_axis_is_given_or_found() {
+    let Some((dir, _)) = rigs_and_runtime() else {
+        return;
+    };
+    let tmp = tempfile::tempdir().unwrap();
+    let data = tmp.path().join("data");
+    std::fs::create_dir_all(&data).unwrap();
+    let mut manifest = String::from("file\tsplit\tcategory\n");
+    for f in [
+        "modular_men__King.glb",
+        "modular_men__Worker.glb",
+        "Animated_Women_Characters__Female_Dress.glb",
+        "Animated_Women_Characters__Female_Casual.glb",
+    ] {
+        std::fs::copy(dir.join(f), data.join(f)).unwrap();
+        manifest += &format!("{f}\tdev\thumanoid\n");
+    }
+    std::fs::write(data.join("manifest.tsv"), manifest).unwrap();
+    let run = |name: &str, extra: &[&str]| {
+        let mut args: Vec<&OsStr> = vec![
+            "--skeleton-only".as_ref(),
+            "--dataset".as_ref(),
+            data.as_os_str(),
+        ];
+        args.extend(extra.iter().map(OsStr::new));
+        let r = run_eval(args, &tmp.path().join(format!("{name}.json")));
+        r["models"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|m| m["skeleton"]["cd_j2j"].as_f64().unwrap())
+            .collect::<Vec<f64>>()
+    };
+    let upright = run("upright", &[]);
+    let lying = run("lying", &["--rotate", "z90"]);
+    assert_ne!(lying, upright, "z90 must turn the data set");
+    for (rotate, up) in [("x90", "z"), ("x-90", "-z"), ("z90", "-x")] {
+        let up = format!("--up={up}");
+        assert_eq!(run(rotate, &["--rotate", rotate, &up]), upright, "{rotate} {up}");
+        let auto = run(rotate, &["--rotate", rotate, "--up", "auto"]);
+        assert_eq!(auto, upright, "{rotate} --up auto");
+    }
+}

@@ -267,18 +267,20 @@ mod tests {
     #[test]
     fn query_and_part_merge() {
         let o = options(
-            Some("seed=7&template=mixamo&skin_only=false&category=quadruped"),
+            Some("seed=7&template=mixamo&skin_only=false&category=quadruped&up=-z"),
             Some(serde_json::json!({"samples": 2, "category": "bird_flyer"})),
         )
         .unwrap();
         assert_eq!((o.seed, o.samples), (7, 2));
         assert_eq!(o.template, TemplateChoice::Mixamo);
+        assert_eq!(o.up, crate::jobs::UpChoice::NegZ);
         assert_eq!(o.category.as_deref(), Some("bird_flyer"));
         for q in [
             "seed=-1",
             "samples=x",
             "bogus=1",
             "template=maybe",
+            "up=w",
             "skin_only=2",
         ] {
             let e = options(Some(q), None).unwrap_err();

@@ -46,6 +46,10 @@ pub struct EvalArgs {
     /// none, so the figures that matter are the ones without it).
     #[arg(long)]
     pub category_hint: bool,
+    /// With --skeleton-only: turn every mesh and its rig first (a new root rotated by a
+    /// multiple of 90°: x90, x-90, z90, …), to score as a Z-up or lying data set.
+    #[arg(long, value_parser = parse_rotation)]
+    pub rotate: Option<rigserve::predict::orient::Turn>,
     #[command(flatten)]
     pub decode: DecodeArgs,
     #[command(flatten)]
@@ -117,6 +121,7 @@ pub fn run(a: EvalArgs) -> anyhow::Result<()> {
             &backend,
             &cfg,
             a.category_hint,
+            a.rotate,
             &limits,
         )?
     } else if a.skin_on_gt {
@@ -206,4 +211,9 @@ pub fn run(a: EvalArgs) -> anyhow::Result<()> {
         );
     }
     Ok(())
+}
+
+fn parse_rotation(s: &str) -> Result<rigserve::predict::orient::Turn, String> {
+    rigserve::predict::orient::Turn::parse_rotation(s)
+        .ok_or_else(|| format!("a rotation is an axis and a multiple of 90 degrees (x90, z-90, y180), not {s:?}"))
 }

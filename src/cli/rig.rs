@@ -149,6 +149,11 @@ pub struct DecodeArgs {
     /// Let the model move its own candidates' joints by up to this many bins (0: off).
     #[arg(long, default_value_t = 0)]
     pub refine_model: u32,
+    /// The mesh's up axis: y (glTF's convention), -y, x, -x, z, -z, or auto (found by
+    /// turning the mesh to its nearest library rig). The rig is written in the mesh's own
+    /// frame either way.
+    #[arg(long, default_value = "y")]
+    pub up: rigserve::predict::orient::Up,
 }
 
 impl DecodeArgs {
@@ -172,6 +177,7 @@ impl DecodeArgs {
             refine_model: (self.refine_model > 0).then_some(Refine {
                 window: self.refine_model,
             }),
+            up: self.up,
             ..PredictConfig::default()
         }
     }

@@ -441,9 +441,23 @@ pub fn eval_model_skeleton(
     backend: &crate::infer::Backend,
     cfg: &crate::predict::PredictConfig,
     category_hint: bool,
+    rotate: Option<crate::predict::orient::Turn>,
     limits: &Limits,
 ) -> Result<Report, EvalError> {
     let models = each_rig(dataset, split, limits, |e, mesh, gt, report| {
+        // The data set turned as a whole (mesh and artist's rig alike), as if exported so.
+        let turned;
+        let (mesh, gt_skeleton) = match rotate {
+            Some(t) => {
+                let mut m = mesh.clone();
+                m.positions.iter_mut().for_each(|p| *p = t.apply(*p));
+                let mut g = gt.skeleton.clone();
+                g.map_points(|p| t.apply(p));
+                turned = (m, g);
+                (&turned.0, &turned.1)
+            }
+            None => (mesh, &gt.skeleton),
+        };
         // Never the scored file's own entry: leave-one-out when the library holds the split.
         let library = cfg.library.as_ref().map(|l| {
             if l.entries.iter().any(|x| x.name == e.file) {
@@ -462,7 +476,7 @@ pub fn eval_model_skeleton(
                 let frame = Frame::from_points(&mesh.positions);
                 report.joints_pred = pred.skeleton.len();
                 report.valid = pred.skeleton.validate(cfg.max_bones).is_ok();
-                report.skeleton = Some(score_skeleton(&pred.skeleton, &gt.skeleton, &frame));
+                report.skeleton = Some(score_skeleton(&pred.skeleton, gt_skeleton, &frame));
                 report.chosen = Some(pred.chosen);
                 // Only the report needs it, so the service never computes it.
                 let model_skeletons: Vec<&Skeleton> = pred
@@ -480,11 +494,11 @@ pub fn eval_model_skeleton(
                     .map(|(c, s)| {
                         let s = s.as_ref().map(|s| {
                             let mut s = s.clone();
-                            s.map_points(|p| pred.normalization.invert(p));
+                            s.map_points(|p| pred.to_mesh(p));
                             s
                         });
                         let metric = |f: fn(&Skeleton, &Skeleton, &Frame) -> Option<f32>| {
-                            s.as_ref().and_then(|s| f(s, &gt.skeleton, &frame))
+                            s.as_ref().and_then(|s| f(s, gt_skeleton, &frame))
                         };
                         CandidateReport {
                             candidate: c.clone(),

@@ -105,12 +105,33 @@ pub enum TemplateChoice {
     None,
 }
 
+/// `up`: the mesh's up axis (glTF's Y by default), or `auto` to find it.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub enum UpChoice {
+    #[serde(rename = "auto")]
+    Auto,
+    #[default]
+    #[serde(rename = "y", alias = "+y")]
+    PosY,
+    #[serde(rename = "-y")]
+    NegY,
+    #[serde(rename = "x", alias = "+x")]
+    PosX,
+    #[serde(rename = "-x")]
+    NegX,
+    #[serde(rename = "z", alias = "+z")]
+    PosZ,
+    #[serde(rename = "-z")]
+    NegZ,
+}
+
 /// What the client asked for. Defaults suit an unknown mesh.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct JobOptions {
     pub category: Option<String>,
     pub template: TemplateChoice,
+    pub up: UpChoice,
     pub seed: u64,
     /// Skeleton candidates decoded (best-of-N).
     pub samples: usize,
@@ -131,6 +152,7 @@ impl Default for JobOptions {
         JobOptions {
             category: None,
             template: TemplateChoice::Auto,
+            up: UpChoice::PosY,
             seed: 0,
             samples: 4,
             max_bones: 128,

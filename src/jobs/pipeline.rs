@@ -3,14 +3,14 @@
 //! blocking pool, while the skeleton decode itself runs on the shared inference thread,
 //! batched with the other jobs' candidates.
 
-use super::model::{JobOptions, Stage, TemplateChoice};
+use super::model::{JobOptions, Stage, TemplateChoice, UpChoice};
 use super::slots::CpuSlots;
 use crate::export::{bone_tree, export_glb, parse_bone_tree, ExportOptions};
 use crate::infer::Backend;
 use crate::infer::SkinModel;
 use crate::mesh::{self, Limits};
 use crate::predict::library::Library;
-use crate::predict::{mesh_samples, predict_from_samples, PredictConfig, TemplateMode};
+use crate::predict::{predict_skeleton, PredictConfig, TemplateMode};
 use crate::rig::groundtruth;
 use crate::rig::skin::{prepare, CandidateScorer, SkinConfig};
 use crate::rig::Skeleton;
@@ -192,11 +192,9 @@ fn skeleton_for(
         })?;
         p.stage(Stage::Encoding);
         let cfg = predict_config(engine, options, progress.clone());
-        let samples = mesh_samples(&asset.mesh, cfg.points, cfg.seed)
-            .map_err(|e| StageError::new(e.code(), e))?;
         check(p)?;
         p.stage(Stage::Skeleton);
-        predict_from_samples(backend, &samples, &cfg, given.as_ref())
+        predict_skeleton(backend, &asset.mesh, &cfg, given.as_ref())
             .map_err(|e| StageError::new(e.code(), e))?
             .skeleton
     };
@@ -220,6 +218,18 @@ fn predict_config(
         },
         canceled: Some(Arc::new(move || progress.canceled())),
         library: engine.library.clone(),
+        up: {
+            use crate::predict::orient::{Axis, Up};
+            match options.up {
+                UpChoice::Auto => Up::Auto,
+                UpChoice::PosY => Up::Axis(Axis::PosY),
+                UpChoice::NegY => Up::Axis(Axis::NegY),
+                UpChoice::PosX => Up::Axis(Axis::PosX),
+                UpChoice::NegX => Up::Axis(Axis::NegX),
+                UpChoice::PosZ => Up::Axis(Axis::PosZ),
+                UpChoice::NegZ => Up::Axis(Axis::NegZ),
+            }
+        },
         ..PredictConfig::default()
     };
     cfg.sampling.seed = options.seed;

@@ -8,6 +8,7 @@
 pub mod inside;
 mod lanes;
 pub mod library;
+pub mod orient;
 pub mod refine;
 pub mod score;
 mod winding;
@@ -22,6 +23,7 @@ use crate::rig::tokenizer::{
 use crate::rig::Skeleton;
 use glam::Vec3;
 use library::{draws_of_samples, BoxFrame, Library};
+use orient::{Turn, Up};
 use score::{SkeletonScore, SurfaceModel};
 use std::collections::HashSet;
 use std::sync::Arc;
@@ -79,6 +81,8 @@ pub struct PredictConfig {
     pub refine_library: Option<refine::Refine>,
     /// The model's own candidates' joints moved the same way, before they are scored.
     pub refine_model: Option<refine::Refine>,
+    /// The mesh's up axis (Y by default), or `Auto` to find it ([`orient`]).
+    pub up: Up,
 }
 
 /// Sampling temperature of the candidates. Chosen per model on data the dev split never
@@ -113,6 +117,7 @@ impl Default for PredictConfig {
             library_trust: DEFAULT_LIBRARY_TRUST,
             refine_library: None,
             refine_model: None,
+            up: Up::default(),
         }
     }
 }
@@ -155,14 +160,60 @@ pub struct MeshSamples {
     pub surface: SurfaceModel,
     /// Bounding box of the mesh in the unit frame.
     pub bounds: (Vec3, Vec3),
+    /// Applied to the mesh before `normalization`: the unit frame is Y-up.
+    pub turn: Turn,
+}
+
+impl MeshSamples {
+    /// A point of the unit frame in the mesh's own frame.
+    pub fn to_mesh(&self, p: Vec3) -> Vec3 {
+        self.turn.invert(self.normalization.invert(p))
+    }
 }
 
 /// Normalizes `mesh` and samples `n` surface points with `seed`: the same steps, in the
 /// same order, as `dataset::build`, so the model sees what it was trained on.
 pub fn mesh_samples(mesh: &Mesh, n: usize, seed: u64) -> Result<MeshSamples, PredictError> {
-    let norm = Normalization::from_points(&mesh.positions);
+    mesh_samples_turned(mesh, n, seed, Turn::IDENTITY)
+}
+
+/// The samples `cfg` asks for: with an axis given, the mesh turned so that axis is up;
+/// with `Auto` and a library, turned the way that brings it nearest a library rig
+/// ([`orient::find_up`]); with `Auto` and no library, as given.
+pub fn samples_for(mesh: &Mesh, cfg: &PredictConfig) -> Result<MeshSamples, PredictError> {
+    match (cfg.up, &cfg.library) {
+        (Up::Axis(a), _) => mesh_samples_turned(mesh, cfg.points, cfg.seed, Turn::bringing_up(a)),
+        (Up::Auto, Some(lib)) => {
+            let given = mesh_samples(mesh, cfg.points, cfg.seed)?;
+            let found = orient::find_up(lib, &given.points, given.bounds, cfg.category.as_deref());
+            if found.turn.is_identity() {
+                return Ok(given);
+            }
+            // The turned mesh is sampled afresh, as a mesh arriving that way would be.
+            drop(given);
+            mesh_samples_turned(mesh, cfg.points, cfg.seed, found.turn)
+        }
+        (Up::Auto, None) => mesh_samples(mesh, cfg.points, cfg.seed),
+    }
+}
+
+/// [`mesh_samples`] of the mesh turned by `turn` first.
+pub fn mesh_samples_turned(
+    mesh: &Mesh,
+    n: usize,
+    seed: u64,
+    turn: Turn,
+) -> Result<MeshSamples, PredictError> {
+    let turned: Vec<Vec3>;
+    let positions = if turn.is_identity() {
+        &mesh.positions
+    } else {
+        turned = mesh.positions.iter().map(|&p| turn.apply(p)).collect();
+        &turned
+    };
+    let norm = Normalization::from_points(positions);
     let unit = Mesh {
-        positions: mesh.positions.iter().map(|&p| norm.apply(p)).collect(),
+        positions: positions.iter().map(|&p| norm.apply(p)).collect(),
         triangles: mesh.triangles.clone(),
         ..Mesh::default()
     };
@@ -182,6 +233,7 @@ pub fn mesh_samples(mesh: &Mesh, n: usize, seed: u64) -> Result<MeshSamples, Pre
         points: rows.into(),
         surface,
         bounds: unit.bounds(),
+        turn,
     })
 }
 
@@ -260,16 +312,26 @@ pub struct Prediction {
     /// Each candidate's skeleton in the unit frame (None where it has none).
     pub unit_skeletons: Vec<Option<Skeleton>>,
     pub normalization: Normalization,
+    /// How the mesh was turned to be rigged ([`MeshSamples::turn`]).
+    pub turn: Turn,
 }
 
-/// Predicts a skeleton for `mesh`, continuing `keep` when given.
+impl Prediction {
+    /// A point of the unit frame in the mesh's own frame.
+    pub fn to_mesh(&self, p: Vec3) -> Vec3 {
+        self.turn.invert(self.normalization.invert(p))
+    }
+}
+
+/// Predicts a skeleton for `mesh`, continuing `keep` when given, in the frame `cfg.up`
+/// asks for ([`samples_for`]); the skeleton is in the mesh's own frame.
 pub fn predict_skeleton(
     backend: &Backend,
     mesh: &Mesh,
     cfg: &PredictConfig,
     keep: Option<&Skeleton>,
 ) -> Result<Prediction, PredictError> {
-    let samples = mesh_samples(mesh, cfg.points, cfg.seed)?;
+    let samples = samples_for(mesh, cfg)?;
     predict_from_samples(backend, &samples, cfg, keep)
 }
 
@@ -281,7 +343,14 @@ pub fn predict_from_samples(
     keep: Option<&Skeleton>,
 ) -> Result<Prediction, PredictError> {
     let norm = samples.normalization;
+    // Bones to keep are given in the mesh's frame; the prompt is made in the turned one.
+    let keep = keep.map(|k| {
+        let mut k = k.clone();
+        k.map_points(|p| samples.turn.apply(p));
+        k
+    });
     let kept = keep
+        .as_ref()
         .map(|k| {
             keep_prompt(
                 k,
@@ -380,6 +449,10 @@ pub fn predict_from_samples(
     if let Some(k) = &kept {
         restore_kept(&mut skeleton, &k.bones);
     }
+    // Exact: a turn only permutes and negates coordinates, so kept bones come back as given.
+    if !samples.turn.is_identity() {
+        skeleton.map_points(|p| samples.turn.invert(p));
+    }
     if skeleton.category.is_none() {
         skeleton.category = cfg.category.clone();
     }
@@ -389,6 +462,7 @@ pub fn predict_from_samples(
         candidates,
         unit_skeletons: skeletons,
         normalization: norm,
+        turn: samples.turn,
     })
 }
 
