@@ -9,10 +9,12 @@ Usage:
 Options are the query parameters of POST /v1/jobs (proto/openapi.yaml), for example
 `--option category=humanoid --option animation=preview`. Writes DIR/<mesh>.rigged.glb
 and DIR/<mesh>.skeleton.json and prints each event as it arrives; exits 1 when the job
-fails.
+fails. Connection and HTTP errors are one line on stderr (with the server's
+`error_type`), exit status 2.
 """
 
 import argparse
+import http.client
 import json
 import os
 import sys
@@ -46,11 +48,16 @@ class Client:
                 message = f"{err['error']} ({err['error_type']})"
             except (ValueError, KeyError):
                 message = e.reason
-            raise SystemExit(f"{method} {path}: {e.code} {message}")
+            raise SystemExit(f"error: {method} {path}: HTTP {e.code}: {message}")
+        except urllib.error.URLError as e:
+            raise SystemExit(f"error: cannot reach rigserve at {self.server}: {e.reason}")
 
     def submit(self, path, options):
-        with open(path, "rb") as f:
-            body = f.read()
+        try:
+            with open(path, "rb") as f:
+                body = f.read()
+        except OSError as e:
+            raise SystemExit(f"error: {path}: {e.strerror}")
         ext = os.path.splitext(path)[1].lower()
         query = urllib.parse.urlencode(options)
         headers = {"Content-Type": CONTENT_TYPES.get(ext, "application/octet-stream")}
@@ -123,4 +130,15 @@ def main():
 
 
 if __name__ == "__main__":
-    main()
+    try:
+        main()
+    except SystemExit as e:
+        # Our one-line errors exit 2; a failed job exits 1 (sys.exit(1) above).
+        if isinstance(e.code, str):
+            print(e.code, file=sys.stderr)
+            sys.exit(2)
+        raise
+    except (OSError, http.client.HTTPException) as e:
+        # A connection dropped mid-stream or mid-download.
+        print(f"error: connection to rigserve lost: {e}", file=sys.stderr)
+        sys.exit(2)

@@ -104,6 +104,8 @@ pub struct Config {
     pub webhook_first_delay: Duration,
     /// Let webhooks go to loopback and private addresses (off: only public ones).
     pub webhook_allow_private: bool,
+    /// Origins allowed cross-origin access from browsers (`*` for any); empty: CORS off.
+    pub cors_origins: Vec<String>,
 }
 
 impl Config {
@@ -138,6 +140,7 @@ impl Config {
             webhook_attempts: 6,
             webhook_first_delay: Duration::from_secs(1),
             webhook_allow_private: false,
+            cors_origins: Vec::new(),
         }
     }
 }
@@ -157,6 +160,8 @@ pub enum AppError {
     #[error(transparent)]
     Keys(#[from] KeysError),
     #[error(transparent)]
+    Cors(#[from] crate::api::cors::BadOrigin),
+    #[error(transparent)]
     Webhook(#[from] WebhookError),
     #[error("metrics: {0}")]
     Metrics(#[from] prometheus::Error),
@@ -173,6 +178,7 @@ impl AppError {
             AppError::Model(e) => e.code(),
             AppError::Library(e) => e.code(),
             AppError::Keys(_) => "api_keys_file",
+            AppError::Cors(_) => "cors_origin_invalid",
             AppError::Webhook(e) => e.code(),
             AppError::Metrics(_) => "metrics",
             AppError::Bind(..) => "bind",
@@ -215,6 +221,8 @@ fn load_models(m: &ModelSetup) -> Result<(Backend, Option<SkinModel>), AppError>
 
 impl Application {
     pub async fn build(cfg: Config) -> Result<Application, AppError> {
+        // Settings first: a bad one fails before anything is opened.
+        let cors = crate::api::cors::Origins::parse(&cfg.cors_origins)?;
         let dir_err = |e| AppError::DataDir(cfg.data_dir.display().to_string(), e);
         let tmp_dir = cfg.data_dir.join("tmp");
         std::fs::create_dir_all(&tmp_dir).map_err(dir_err)?;
@@ -358,6 +366,7 @@ impl Application {
                 request_timeout: cfg.request_timeout,
                 upload_timeout: cfg.upload_timeout,
                 webhook_allow_private: cfg.webhook_allow_private,
+                cors,
             }),
             registry,
             decode,

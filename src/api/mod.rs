@@ -2,6 +2,7 @@
 //! run rigging themselves; they validate, queue, and read what workers recorded.
 
 pub mod auth;
+pub mod cors;
 pub mod error;
 pub mod events;
 pub mod health;
@@ -58,6 +59,8 @@ pub struct ApiConfig {
     pub upload_timeout: Duration,
     /// `webhook_url` may name a loopback or private address.
     pub webhook_allow_private: bool,
+    /// Browser origins allowed cross-origin access; `None`: CORS off.
+    pub cors: Option<cors::Origins>,
 }
 
 pub type SnapshotFn = Arc<dyn Fn() -> MetricsSnapshot + Send + Sync>;
@@ -138,7 +141,7 @@ pub fn router(state: AppState, http: HttpMetrics) -> Router {
             cfg.request_timeout,
         ));
     let streams = Router::new().route("/v1/jobs/{id}/events", get(events::events));
-    Router::new()
+    let mut app = Router::new()
         .merge(submit)
         .merge(sync)
         .merge(quick)
@@ -150,8 +153,18 @@ pub fn router(state: AppState, http: HttpMetrics) -> Router {
         .layer(axum::middleware::from_fn(refusals::json_errors))
         .layer(axum::middleware::from_fn(refusals::http_limits))
         .layer(axum::middleware::from_fn_with_state(http, metrics::track))
-        .layer(CatchPanicLayer::custom(panic_response))
-        .layer(
+        .layer(CatchPanicLayer::custom(panic_response));
+    // Outside auth and the error mapping: a preflight carries no credentials and is
+    // answered here, never by a handler.
+    if let Some(origins) = &cfg.cors {
+        app = app
+            .layer(origins.layer())
+            .layer(axum::middleware::from_fn_with_state(
+                origins.clone(),
+                cors::only_listed,
+            ));
+    }
+    app.layer(
             TraceLayer::new_for_http().make_span_with(|req: &Request<Body>| {
                 let id = req
                     .headers()

@@ -120,6 +120,14 @@ pub struct ServeArgs {
     /// the server call into its own network.
     #[arg(long, env = "RIGSERVE_WEBHOOK_ALLOW_PRIVATE")]
     pub webhook_allow_private: bool,
+    /// Let browser pages from this origin (`http://host:port`, or `*`) call the API:
+    /// repeatable, or comma-separated in the env. Off when unset.
+    #[arg(
+        long = "cors-origin",
+        env = "RIGSERVE_CORS_ORIGINS",
+        value_delimiter = ','
+    )]
+    pub cors_origins: Vec<String>,
     /// Log as JSON lines.
     #[arg(long, env = "RIGSERVE_LOG_JSON")]
     pub log_json: bool,
@@ -178,6 +186,7 @@ pub fn run(a: ServeArgs) -> anyhow::Result<()> {
     cfg.webhook_secret = a.webhook_secret.clone();
     cfg.webhook_attempts = a.webhook_attempts;
     cfg.webhook_allow_private = a.webhook_allow_private;
+    cfg.cors_origins = a.cors_origins.clone();
     let rt = tokio::runtime::Builder::new_multi_thread()
         .enable_all()
         .build()?;

@@ -2,6 +2,7 @@
 //! idempotency, expiry, auth isolation, SSE resumption, webhooks, and (in `restart.rs`)
 //! recovery after kill -9.
 
+mod cors;
 mod helpers;
 #[path = "../cluster/infra.rs"]
 mod infra;

@@ -58,6 +58,31 @@ async fn the_python_client_uploads_follows_and_downloads() {
     })
     .await
     .unwrap();
-    assert!(!run.status.success());
+    // Refused at upload: one line naming the status and the server's error_type.
+    let stderr = String::from_utf8_lossy(&run.stderr);
+    assert_eq!(run.status.code(), Some(2), "{stderr}");
+    assert_eq!(stderr.trim().lines().count(), 1, "{stderr}");
+    assert!(
+        stderr.contains("HTTP 422") && stderr.contains("(degenerate_mesh)"),
+        "{stderr}"
+    );
     app.stop().await;
+
+    // No server there: one line, no traceback.
+    let dead = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+    let url = format!("http://{}", dead.local_addr().unwrap());
+    drop(dead);
+    let run = Command::new("python3")
+        .arg(repo().join("examples/client.py"))
+        .arg(&mesh)
+        .args(["--server", url.as_str()])
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&run.stderr);
+    assert_eq!(run.status.code(), Some(2), "{stderr}");
+    assert!(
+        stderr.starts_with("error: cannot reach rigserve at ") && !stderr.contains("Traceback"),
+        "{stderr}"
+    );
+    assert_eq!(stderr.trim().lines().count(), 1, "{stderr}");
 }

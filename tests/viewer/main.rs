@@ -14,6 +14,7 @@ mod helpers;
 
 mod assets;
 mod client;
+mod cors;
 mod deform;
 mod page;
 
