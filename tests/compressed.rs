@@ -36,13 +36,21 @@ fn gltf_transform() -> Option<PathBuf> {
     let bin = tools_dir().join("node_modules/.bin/gltf-transform");
     if !bin.is_file() {
         let _ = Command::new("npm")
-            .args(["ci", "--prefix", tools_dir().to_str().unwrap(), "--no-audit", "--no-fund"])
+            .args([
+                "ci",
+                "--prefix",
+                tools_dir().to_str().unwrap(),
+                "--no-audit",
+                "--no-fund",
+            ])
             .status();
     }
     if bin.is_file() && Command::new("node").arg("--version").output().is_ok() {
         Some(bin)
     } else {
-        eprintln!("SKIPPED: gltf-transform is not installed (npm ci --prefix tools) or node is missing");
+        eprintln!(
+            "SKIPPED: gltf-transform is not installed (npm ci --prefix tools) or node is missing"
+        );
         None
     }
 }
@@ -157,7 +165,11 @@ fn area(a: &Asset) -> f64 {
 /// Largest distance from a vertex of `a` to the nearest vertex of `b`.
 fn farthest_vertex(a: &[Vec3], b: &[Vec3]) -> f32 {
     a.iter()
-        .map(|p| b.iter().map(|q| p.distance_squared(*q)).fold(f32::MAX, f32::min))
+        .map(|p| {
+            b.iter()
+                .map(|q| p.distance_squared(*q))
+                .fold(f32::MAX, f32::min)
+        })
         .fold(0.0, f32::max)
         .sqrt()
 }
@@ -207,7 +219,10 @@ fn compressed_copies_read_like_their_source() {
         let b = load_file(&copy);
         // The document handed to the export is plain glTF: no compression left.
         let doc = b.document.as_ref().unwrap();
-        assert!(!declares_compression(&doc.json), "{label}: still declares compression");
+        assert!(
+            !declares_compression(&doc.json),
+            "{label}: still declares compression"
+        );
         let size = size_of(&a);
         // gltf-transform quantizes positions to 14 bits (Draco, meshopt, quantize alike).
         let tol = size * 2e-3;
@@ -221,14 +236,23 @@ fn compressed_copies_read_like_their_source() {
             farthest_vertex(&b.mesh.positions, &a.mesh.positions),
             farthest_vertex(&a.mesh.positions, &b.mesh.positions),
         );
-        assert!(fa < tol && fb < tol, "{label}: vertices moved {fa} / {fb} (size {size})");
+        assert!(
+            fa < tol && fb < tol,
+            "{label}: vertices moved {fa} / {fb} (size {size})"
+        );
         let (aa, ab) = (area(&a), area(&b));
-        assert!((aa - ab).abs() < aa * 0.01, "{label}: area {ab} against {aa}");
+        assert!(
+            (aa - ab).abs() < aa * 0.01,
+            "{label}: area {ab} against {aa}"
+        );
         // Draco drops the sphere's degenerate pole triangles and splits seams; the
         // others keep every vertex and triangle.
         let (ta, tb) = (a.mesh.triangles.len(), b.mesh.triangles.len());
         if label.contains("draco") {
-            assert!(tb <= ta && tb * 100 >= ta * 98, "{label}: {tb} triangles of {ta}");
+            assert!(
+                tb <= ta && tb * 100 >= ta * 98,
+                "{label}: {tb} triangles of {ta}"
+            );
         } else {
             assert_eq!(tb, ta, "{label}: triangles");
             assert_eq!(b.mesh.positions.len(), a.mesh.positions.len(), "{label}");
@@ -256,9 +280,15 @@ fn compressed_copies_rig_and_validate_with_their_textures() {
         let (in_json, _) = glb_json(&std::fs::read(&copy).unwrap());
         let bytes = std::fs::read(&out).unwrap();
         let (json, _) = glb_json(&bytes);
-        assert!(!declares_compression(&json), "{label}: output declares compression");
+        assert!(
+            !declares_compression(&json),
+            "{label}: output declares compression"
+        );
         // Images, textures and the texture extensions come through as they were.
-        assert_eq!(json["images"].as_array().map(Vec::len), in_json["images"].as_array().map(Vec::len));
+        assert_eq!(
+            json["images"].as_array().map(Vec::len),
+            in_json["images"].as_array().map(Vec::len)
+        );
         assert_eq!(json["textures"], in_json["textures"], "{label}: textures");
         for (i, img) in json["images"].as_array().unwrap().iter().enumerate() {
             assert_eq!(img["mimeType"], in_json["images"][i]["mimeType"], "{label}");
@@ -266,8 +296,13 @@ fn compressed_copies_rig_and_validate_with_their_textures() {
         let used = names(&json, "extensionsUsed");
         if label.contains("webp") {
             assert_eq!(json["images"][0]["mimeType"], "image/webp", "{label}");
-            assert!(used.iter().any(|e| e == "EXT_texture_webp"), "{label}: {used:?}");
-            assert!(names(&json, "extensionsRequired").iter().any(|e| e == "EXT_texture_webp"));
+            assert!(
+                used.iter().any(|e| e == "EXT_texture_webp"),
+                "{label}: {used:?}"
+            );
+            assert!(names(&json, "extensionsRequired")
+                .iter()
+                .any(|e| e == "EXT_texture_webp"));
         }
         // Quantized data stays quantized, so the output still declares it.
         let quantized = names(&in_json, "extensionsUsed")
@@ -280,7 +315,9 @@ fn compressed_copies_rig_and_validate_with_their_textures() {
         );
         outputs.push(out);
     }
-    let Some(reports) = validate(&outputs) else { return };
+    let Some(reports) = validate(&outputs) else {
+        return;
+    };
     let errors = errors_of(&reports);
     assert!(errors.is_empty(), "validator errors: {errors:#?}");
 }
@@ -293,7 +330,10 @@ fn compressed_ranges(bytes: &[u8]) -> Vec<(usize, usize)> {
     for v in views {
         if let Some(e) = v.pointer("/extensions/EXT_meshopt_compression") {
             let o = e["byteOffset"].as_u64().unwrap_or(0) as usize;
-            out.push((bin + o, bin + o + e["byteLength"].as_u64().unwrap() as usize));
+            out.push((
+                bin + o,
+                bin + o + e["byteLength"].as_u64().unwrap() as usize,
+            ));
         }
     }
     for m in json["meshes"].as_array().unwrap() {
@@ -301,7 +341,10 @@ fn compressed_ranges(bytes: &[u8]) -> Vec<(usize, usize)> {
             if let Some(e) = p.pointer("/extensions/KHR_draco_mesh_compression") {
                 let v = &views[e["bufferView"].as_u64().unwrap() as usize];
                 let o = v["byteOffset"].as_u64().unwrap_or(0) as usize;
-                out.push((bin + o, bin + o + v["byteLength"].as_u64().unwrap() as usize));
+                out.push((
+                    bin + o,
+                    bin + o + v["byteLength"].as_u64().unwrap() as usize,
+                ));
             }
         }
     }
@@ -352,7 +395,10 @@ fn corrupt_compressed_data_is_a_typed_error_never_a_panic() {
         let out = rig(&bad, &dir.path().join("never.glb"));
         assert!(!out.status.success());
         let stderr = String::from_utf8_lossy(&out.stderr);
-        assert!(stderr.contains("[compressed_data_invalid]"), "{kind}: {stderr}");
+        assert!(
+            stderr.contains("[compressed_data_invalid]"),
+            "{kind}: {stderr}"
+        );
         // Random damage anywhere in the compressed bytes: an answer every time (a
         // stream may still decode, to other geometry), and never a panic.
         let mut refused = 0;
@@ -402,14 +448,23 @@ fn compressed_copies_of_dev_files_rig_and_validate() {
             let tol = size_of(&source) * 2e-3;
             let (alo, ahi) = source.mesh.bounds();
             let (blo, bhi) = asset.mesh.bounds();
-            assert!(alo.distance(blo) < tol && ahi.distance(bhi) < tol, "{kind} {file}");
+            assert!(
+                alo.distance(blo) < tol && ahi.distance(bhi) < tol,
+                "{kind} {file}"
+            );
             let out = dir.path().join(format!("rigged_{kind}_{file}"));
             rig_ok(&copy, &out);
             outputs.push(out);
         }
     }
-    assert_eq!(outputs.len(), picks.len() * 3, "the picked files are not all in dev");
-    let Some(reports) = validate(&outputs) else { return };
+    assert_eq!(
+        outputs.len(),
+        picks.len() * 3,
+        "the picked files are not all in dev"
+    );
+    let Some(reports) = validate(&outputs) else {
+        return;
+    };
     let errors = errors_of(&reports);
     assert!(errors.is_empty(), "validator errors: {errors:#?}");
 }
@@ -444,11 +499,15 @@ fn valid_avatars_of_xdev_rig_and_validate() {
         rig_ok(f, &out);
         let (json, _) = glb_json(&std::fs::read(&out).unwrap());
         assert!(!declares_compression(&json), "{}", f.display());
-        assert!(names(&json, "extensionsUsed").iter().any(|e| e == "EXT_texture_webp"));
+        assert!(names(&json, "extensionsUsed")
+            .iter()
+            .any(|e| e == "EXT_texture_webp"));
         assert!(json["images"].as_array().is_some_and(|i| !i.is_empty()));
         outputs.push(out);
     }
-    let Some(reports) = validate(&outputs) else { return };
+    let Some(reports) = validate(&outputs) else {
+        return;
+    };
     let errors = errors_of(&reports);
     assert!(errors.is_empty(), "validator errors: {errors:#?}");
 }

@@ -9,7 +9,10 @@ use std::process::Command;
 /// Rows chosen for being small and of two formats (.b3d through assimp, .glb copied).
 const ROWS: [(&str, &str); 2] = [
     ("TheTermos/wildlife", "models/wolf.b3d"),
-    ("lemonhall/openagentic-sdk-gdscript", "assets/kenney/mini-characters-1/character-female-a.glb"),
+    (
+        "lemonhall/openagentic-sdk-gdscript",
+        "assets/kenney/mini-characters-1/character-female-a.glb",
+    ),
 ];
 
 fn mirrors() -> PathBuf {
@@ -28,7 +31,12 @@ fn first_skin_joints(glb: &[u8]) -> Option<usize> {
     let rest = &json[json.find("\"skins\"")?..];
     let tail = &rest[rest.find("\"joints\":[")? + 10..];
     let end = tail.find(']')?;
-    Some(tail[..end].split(',').filter(|s| !s.trim().is_empty()).count())
+    Some(
+        tail[..end]
+            .split(',')
+            .filter(|s| !s.trim().is_empty())
+            .count(),
+    )
 }
 
 #[test]
@@ -41,24 +49,36 @@ fn collector_rebuilds_two_rows_with_skins() {
         .filter(|r| !mirrors.join(r.replace('/', "+")).join("repo").is_dir())
         .collect();
     if !missing.is_empty() {
-        eprintln!("SKIPPED: no git mirror under {} for {missing:?}", mirrors.display());
+        eprintln!(
+            "SKIPPED: no git mirror under {} for {missing:?}",
+            mirrors.display()
+        );
         return;
     }
     if Command::new("python3").arg("--version").output().is_err() {
         eprintln!("SKIPPED: python3 is not installed");
         return;
     }
-    let text = std::fs::read_to_string(root.join("training/corpus/manifest.tsv")).expect("manifest");
+    let text =
+        std::fs::read_to_string(root.join("training/corpus/manifest.tsv")).expect("manifest");
     let mut lines = text.lines();
     let header = lines.next().unwrap();
-    assert!(header.starts_with("repo\tcommit\tpath\tlicence\tartist\tcategory"), "{header}");
+    assert!(
+        header.starts_with("repo\tcommit\tpath\tlicence\tartist\tcategory"),
+        "{header}"
+    );
     let rows: Vec<&str> = lines
         .filter(|l| {
             let v: Vec<&str> = l.split('\t').collect();
-            ROWS.iter().any(|(r, p)| v.first() == Some(r) && v.get(2) == Some(p))
+            ROWS.iter()
+                .any(|(r, p)| v.first() == Some(r) && v.get(2) == Some(p))
         })
         .collect();
-    assert_eq!(rows.len(), 2, "both test rows are in training/corpus/manifest.tsv");
+    assert_eq!(
+        rows.len(),
+        2,
+        "both test rows are in training/corpus/manifest.tsv"
+    );
 
     let tmp = std::env::temp_dir().join(format!("rigserve_corpus_collect_{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&tmp);
@@ -81,17 +101,33 @@ fn collector_rebuilds_two_rows_with_skins() {
     let built = std::fs::read_to_string(out.join("manifest.tsv")).expect("output manifest.tsv");
     let mut bl = built.lines();
     let bh: Vec<&str> = bl.next().unwrap().split('\t').collect();
-    let col = |n: &str| bh.iter().position(|h| *h == n).unwrap_or_else(|| panic!("column {n}"));
+    let col = |n: &str| {
+        bh.iter()
+            .position(|h| *h == n)
+            .unwrap_or_else(|| panic!("column {n}"))
+    };
     let (f, j, s) = (col("file"), col("joints"), col("split"));
-    let built_rows: Vec<Vec<&str>> = bl.filter(|l| !l.is_empty()).map(|l| l.split('\t').collect()).collect();
-    assert_eq!(built_rows.len(), 2, "both rows built (see {})", out.join("DROPPED.tsv").display());
+    let built_rows: Vec<Vec<&str>> = bl
+        .filter(|l| !l.is_empty())
+        .map(|l| l.split('\t').collect())
+        .collect();
+    assert_eq!(
+        built_rows.len(),
+        2,
+        "both rows built (see {})",
+        out.join("DROPPED.tsv").display()
+    );
     for v in &built_rows {
         assert_eq!(v[s], "train");
         let joints: usize = v[j].parse().unwrap();
         assert!(joints >= 2, "{}: {joints} joints", v[f]);
         let bytes = std::fs::read(out.join(v[f])).unwrap_or_else(|e| panic!("{}: {e}", v[f]));
         let skin = first_skin_joints(&bytes);
-        assert!(skin.is_some_and(|n| n >= 2), "{}: first skin joints {skin:?}", v[f]);
+        assert!(
+            skin.is_some_and(|n| n >= 2),
+            "{}: first skin joints {skin:?}",
+            v[f]
+        );
     }
     assert!(out.join("ARTISTS.tsv").is_file());
     let _ = std::fs::remove_dir_all(&tmp);

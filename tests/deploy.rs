@@ -358,7 +358,9 @@ fn dockerfile_and_image_build_script_agree() {
         ".dockerignore lets a locally built library.json into the image"
     );
     assert!(
-        !ignore.lines().any(|l| l == "models/library.bin" || l == "models/NOTICE"),
+        !ignore
+            .lines()
+            .any(|l| l == "models/library.bin" || l == "models/NOTICE"),
         ".dockerignore keeps the shipped library or its notice out of the image"
     );
 

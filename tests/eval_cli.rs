@@ -372,7 +372,11 @@ fn a_turned_data_set_rigs_as_upright_when_its_up_axis_is_given_or_found() {
     assert_ne!(lying, upright, "z90 must turn the data set");
     for (rotate, up) in [("x90", "z"), ("x-90", "-z"), ("z90", "-x")] {
         let up = format!("--up={up}");
-        assert_eq!(run(rotate, &["--rotate", rotate, &up]), upright, "{rotate} {up}");
+        assert_eq!(
+            run(rotate, &["--rotate", rotate, &up]),
+            upright,
+            "{rotate} {up}"
+        );
         let auto = run(rotate, &["--rotate", rotate, "--up", "auto"]);
         assert_eq!(auto, upright, "{rotate} --up auto");
     }

@@ -133,7 +133,8 @@ async fn hostile_uploads_leave_the_server_up_and_its_memory_bounded() {
                     let done = wait_job(&c, &base, &id, Duration::from_secs(300)).await;
                     let end = done["status"].as_str().unwrap_or("").to_string();
                     assert!(
-                        end == "succeeded" || (end == "failed" && done["error"]["code"].is_string()),
+                        end == "succeeded"
+                            || (end == "failed" && done["error"]["code"].is_string()),
                         "{name}: job ended {done}"
                     );
                     end
@@ -162,7 +163,10 @@ async fn hostile_uploads_leave_the_server_up_and_its_memory_bounded() {
         mb(idle),
         mb(peak),
         mb(after),
-        outcomes.iter().filter(|o| *o != "succeeded" && *o != "failed").count(),
+        outcomes
+            .iter()
+            .filter(|o| *o != "succeeded" && *o != "failed")
+            .count(),
         outcomes.iter().filter(|o| *o == "succeeded").count(),
         outcomes.iter().filter(|o| *o == "failed").count(),
     );

@@ -36,7 +36,11 @@ fn committed_tree(into: &Path) -> Option<PathBuf> {
         .arg("HEAD")
         .output()
         .expect("git archive");
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     let root = into.join("clone");
     std::fs::create_dir_all(&root).unwrap();
     let out = Command::new("tar")
@@ -46,16 +50,20 @@ fn committed_tree(into: &Path) -> Option<PathBuf> {
         .arg(&root)
         .output()
         .expect("tar");
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     Some(root)
 }
 
 /// A small two-legged, two-armed figure as OBJ text: something for the default path to rig.
 fn figure_obj() -> String {
     let boxes = [
-        ([-0.25, 0.9, -0.15], [0.25, 1.5, 0.15]),   // torso
-        ([-0.12, 1.5, -0.12], [0.12, 1.75, 0.12]),  // head
-        ([-0.22, 0.0, -0.1], [-0.05, 0.9, 0.1]),    // legs
+        ([-0.25, 0.9, -0.15], [0.25, 1.5, 0.15]),  // torso
+        ([-0.12, 1.5, -0.12], [0.12, 1.75, 0.12]), // head
+        ([-0.22, 0.0, -0.1], [-0.05, 0.9, 0.1]),   // legs
         ([0.05, 0.0, -0.1], [0.22, 0.9, 0.1]),
         ([-0.85, 1.35, -0.07], [-0.25, 1.48, 0.07]), // arms
         ([0.25, 1.35, -0.07], [0.85, 1.48, 0.07]),
@@ -100,7 +108,10 @@ fn rig_default(dir: &Path, mesh: &Path) -> (String, String) {
 #[test]
 fn a_copy_of_the_committed_tree_rigs_with_the_same_library_as_the_working_tree() {
     if !ort_lib().is_file() {
-        eprintln!("SKIPPED: no ONNX Runtime at {} (make setup fetches it)", ort_lib().display());
+        eprintln!(
+            "SKIPPED: no ONNX Runtime at {} (make setup fetches it)",
+            ort_lib().display()
+        );
         return;
     }
     let tmp = tempfile::tempdir().unwrap();
@@ -119,7 +130,10 @@ fn a_copy_of_the_committed_tree_rigs_with_the_same_library_as_the_working_tree()
     let (tree_here, err_here) = rig_default(&repo(), &mesh);
     let (tree_clone, err_clone) = rig_default(&clone, &mesh);
     for err in [&err_here, &err_clone] {
-        assert!(err.contains("skeleton library: models/library.bin"), "{err}");
+        assert!(
+            err.contains("skeleton library: models/library.bin"),
+            "{err}"
+        );
     }
     assert_eq!(tree_here, tree_clone, "the clone rigs differently");
     assert!(tree_clone.contains("\"bones\""), "{tree_clone}");
@@ -136,7 +150,10 @@ fn every_rig_of_the_shipped_library_is_credited_in_the_notice() {
         .map(|e| e.name.trim_end_matches(".glb"))
         .filter(|n| !notice.contains(n))
         .collect();
-    assert!(missing.is_empty(), "not credited in models/NOTICE: {missing:?}");
+    assert!(
+        missing.is_empty(),
+        "not credited in models/NOTICE: {missing:?}"
+    );
 }
 
 /// With `../shared` beside the checkout: the dev figures of a copy of the committed tree
@@ -177,7 +194,9 @@ fn eval_figures_of_the_committed_tree_match_the_working_tree() {
         "{}",
         here["used"]
     );
-    assert!(here["per_artist"].as_object().is_some_and(|m| !m.is_empty()));
+    assert!(here["per_artist"]
+        .as_object()
+        .is_some_and(|m| !m.is_empty()));
     // What the README states is what the committed tree measures.
     let (j2j, j2b, b2b) = readme_dev_figures();
     let sk = &there["overall"]["skeleton"];

@@ -21,10 +21,7 @@ const MAX_MESSAGE: usize = 4 << 10;
 
 /// 414 for a long URL and 431 for large or many headers, before routing.
 pub async fn http_limits(req: Request, next: Next) -> Response {
-    let uri = req
-        .uri()
-        .path_and_query()
-        .map_or(0, |pq| pq.as_str().len());
+    let uri = req.uri().path_and_query().map_or(0, |pq| pq.as_str().len());
     if uri > MAX_URI {
         return ApiError::new(
             StatusCode::URI_TOO_LONG,
@@ -95,9 +92,10 @@ fn classify(status: StatusCode, text: &str) -> (&'static str, &'static str) {
         StatusCode::LENGTH_REQUIRED => ("length_required", "the request needs a length"),
         StatusCode::PAYLOAD_TOO_LARGE => ("file_too_large", "the body is over the limit"),
         StatusCode::URI_TOO_LONG => ("uri_too_long", "the URL is too long"),
-        StatusCode::UNSUPPORTED_MEDIA_TYPE => {
-            ("unsupported_media_type", "the body's type is not accepted here")
-        }
+        StatusCode::UNSUPPORTED_MEDIA_TYPE => (
+            "unsupported_media_type",
+            "the body's type is not accepted here",
+        ),
         StatusCode::UNPROCESSABLE_ENTITY => ("invalid_request", "the request cannot be read"),
         StatusCode::REQUEST_HEADER_FIELDS_TOO_LARGE => {
             ("headers_too_large", "the headers are too large")

@@ -106,7 +106,10 @@ pub async fn read(req: Request<Body>, limit: u64, tmp_dir: &Path) -> Result<Uplo
     if declared.as_deref() != Some("multipart/form-data") {
         // A wrong type is refused before a byte of the body is read.
         declared_format(declared.as_deref())?;
-        let chunks = req.into_body().into_data_stream().map(|c| c.map_err(interrupted));
+        let chunks = req
+            .into_body()
+            .into_data_stream()
+            .map(|c| c.map_err(interrupted));
         let bytes = spool(chunks, limit, tmp_dir).await?;
         return Ok(Upload {
             bytes,

@@ -407,7 +407,10 @@ fn skeleton(a: SkeletonArgs) -> anyhow::Result<()> {
         // Sampling timed on its own (once per turn the search tries); the whole prediction,
         // up-axis search included, timed as the service runs it.
         let t0 = Instant::now();
-        drop(mesh_samples(&asset.mesh, cfg.points, cfg.seed).map_err(|e| anyhow::anyhow!("{e} [{}]", e.code()))?);
+        drop(
+            mesh_samples(&asset.mesh, cfg.points, cfg.seed)
+                .map_err(|e| anyhow::anyhow!("{e} [{}]", e.code()))?,
+        );
         let sample_ms = t0.elapsed().as_secs_f64() * 1e3;
         let before = backend.metrics();
         let t1 = Instant::now();

@@ -159,11 +159,17 @@ pub fn run(a: EvalArgs) -> anyhow::Result<()> {
         match &u.library {
             Some(l) => eprintln!("library: {} sha256 {}", l.path, &l.sha256[..16]),
             None if a.library_split.is_some() => {
-                eprintln!("library: split {} of the data set", a.library_split.as_deref().unwrap_or(""))
+                eprintln!(
+                    "library: split {} of the data set",
+                    a.library_split.as_deref().unwrap_or("")
+                )
             }
             None => eprintln!("library: none (the model alone)"),
         }
-        eprintln!("category hint: {}", if u.category_hint { "on" } else { "off" });
+        eprintln!(
+            "category hint: {}",
+            if u.category_hint { "on" } else { "off" }
+        );
     }
     report.used = used;
     std::fs::write(&a.out, serde_json::to_vec_pretty(&report)?)
@@ -214,6 +220,7 @@ pub fn run(a: EvalArgs) -> anyhow::Result<()> {
 }
 
 fn parse_rotation(s: &str) -> Result<rigserve::predict::orient::Turn, String> {
-    rigserve::predict::orient::Turn::parse_rotation(s)
-        .ok_or_else(|| format!("a rotation is an axis and a multiple of 90 degrees (x90, z-90, y180), not {s:?}"))
+    rigserve::predict::orient::Turn::parse_rotation(s).ok_or_else(|| {
+        format!("a rotation is an axis and a multiple of 90 degrees (x90, z-90, y180), not {s:?}")
+    })
 }

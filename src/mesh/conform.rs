@@ -76,15 +76,26 @@ pub fn check(root: &Root) -> Result<(), MeshError> {
         }
         if let Some(sp) = &a.sparse {
             let pairs = [
-                (sp.indices.buffer_view, sp.indices.byte_offset, sp.indices.component_type),
-                (sp.values.buffer_view, sp.values.byte_offset, a.component_type),
+                (
+                    sp.indices.buffer_view,
+                    sp.indices.byte_offset,
+                    sp.indices.component_type,
+                ),
+                (
+                    sp.values.buffer_view,
+                    sp.values.byte_offset,
+                    a.component_type,
+                ),
             ];
             for (view, offset, ct) in pairs {
                 let v = root.buffer_views.get(view).filter(|v| fits(v));
                 let (Some(v), Some(size)) = (v, component_size(ct)) else {
                     continue;
                 };
-                if v.byte_offset.checked_add(offset).is_some_and(|o| o % size as u64 != 0) {
+                if v.byte_offset
+                    .checked_add(offset)
+                    .is_some_and(|o| o % size as u64 != 0)
+                {
                     return Err(MeshError::MisalignedAccessor(format!(
                         "accessor {i}'s sparse data is not aligned to its component size"
                     )));
@@ -165,9 +176,18 @@ mod tests {
                 "accessors":[{"bufferView":0,"byteOffset":1,"componentType":5123,"count":4,"type":"SCALAR"}]"#,
                 "misaligned_accessor",
             ),
-            (r#""bufferViews":[{"buffer":0,"byteLength":48,"byteStride":13}]"#, "bad_byte_stride"),
-            (r#""bufferViews":[{"buffer":0,"byteLength":48,"byteStride":256}]"#, "bad_byte_stride"),
-            (r#""extensionsRequired":["EXT_made_up"]"#, "unsupported_required_extension"),
+            (
+                r#""bufferViews":[{"buffer":0,"byteLength":48,"byteStride":13}]"#,
+                "bad_byte_stride",
+            ),
+            (
+                r#""bufferViews":[{"buffer":0,"byteLength":48,"byteStride":256}]"#,
+                "bad_byte_stride",
+            ),
+            (
+                r#""extensionsRequired":["EXT_made_up"]"#,
+                "unsupported_required_extension",
+            ),
             (
                 r#""bufferViews":[{"buffer":0,"byteLength":48}],
                 "accessors":[{"bufferView":0,"componentType":5121,"count":4,"type":"VEC3"}],

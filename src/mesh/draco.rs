@@ -72,7 +72,11 @@ struct Values {
     data: Vec<f64>,
 }
 
-fn view_bytes<'a>(json: &Value, buffers: &'a [Vec<u8>], view: usize) -> Result<&'a [u8], MeshError> {
+fn view_bytes<'a>(
+    json: &Value,
+    buffers: &'a [Vec<u8>],
+    view: usize,
+) -> Result<&'a [u8], MeshError> {
     let v = json
         .get("bufferViews")
         .and_then(|b| b.get(view))
@@ -220,12 +224,19 @@ pub(super) fn decode(
         let view = ext
             .get("bufferView")
             .and_then(Value::as_u64)
-            .ok_or_else(|| invalid(format!("mesh {m} primitive {p}: the Draco extension has no bufferView")))?
-            as usize;
+            .ok_or_else(|| {
+                invalid(format!(
+                    "mesh {m} primitive {p}: the Draco extension has no bufferView"
+                ))
+            })? as usize;
         let attrs = ext
             .get("attributes")
             .and_then(Value::as_object)
-            .ok_or_else(|| invalid(format!("mesh {m} primitive {p}: the Draco extension has no attributes")))?
+            .ok_or_else(|| {
+                invalid(format!(
+                    "mesh {m} primitive {p}: the Draco extension has no attributes"
+                ))
+            })?
             .clone();
         if !cache.contains_key(&view) {
             let d = decode_stream(view_bytes(json, buffers, view)?, limits)?;
@@ -300,12 +311,14 @@ pub(super) fn decode(
                         "mesh {m} primitive {p}: Draco attribute {name} is not an attribute"
                     ))
                 })?;
-            let acc_json = accessor(json, a)
-                .ok_or_else(|| MeshError::IndexOutOfRange {
-                    what: "accessor",
-                    index: a as u64,
-                })?;
-            let ct = acc_json.get("componentType").and_then(Value::as_u64).unwrap_or(0) as u32;
+            let acc_json = accessor(json, a).ok_or_else(|| MeshError::IndexOutOfRange {
+                what: "accessor",
+                index: a as u64,
+            })?;
+            let ct = acc_json
+                .get("componentType")
+                .and_then(Value::as_u64)
+                .unwrap_or(0) as u32;
             let kind = acc_json
                 .get("type")
                 .and_then(Value::as_str)

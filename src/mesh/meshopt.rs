@@ -166,7 +166,9 @@ fn decode_view(
     let rc = match mode {
         "ATTRIBUTES" => {
             if stride == 0 || stride > 256 || stride % 4 != 0 {
-                return Err(format!("ATTRIBUTES with byteStride {stride} (4 to 256, by 4)"));
+                return Err(format!(
+                    "ATTRIBUTES with byteStride {stride} (4 to 256, by 4)"
+                ));
             }
             // SAFETY: `dst` holds n * stride bytes; stride is what the decoder accepts.
             unsafe { ffi::meshopt_decodeVertexBuffer(dst, n, stride, src.as_ptr(), src.len()) }
@@ -177,21 +179,23 @@ fn decode_view(
             }
             if mode == "TRIANGLES" {
                 if n % 3 != 0 {
-                    return Err(format!("TRIANGLES with a count of {n}, not a multiple of 3"));
+                    return Err(format!(
+                        "TRIANGLES with a count of {n}, not a multiple of 3"
+                    ));
                 }
                 // SAFETY: as above; the count is a multiple of 3 and the size 2 or 4.
                 unsafe { ffi::meshopt_decodeIndexBuffer(dst, n, stride, src.as_ptr(), src.len()) }
             } else {
                 // SAFETY: as above.
-                unsafe {
-                    ffi::meshopt_decodeIndexSequence(dst, n, stride, src.as_ptr(), src.len())
-                }
+                unsafe { ffi::meshopt_decodeIndexSequence(dst, n, stride, src.as_ptr(), src.len()) }
             }
         }
         other => return Err(format!("unknown mode {other:?}")),
     };
     if rc != 0 {
-        return Err(format!("the {mode} stream does not decode (meshoptimizer error {rc})"));
+        return Err(format!(
+            "the {mode} stream does not decode (meshoptimizer error {rc})"
+        ));
     }
     if filter != "NONE" && mode != "ATTRIBUTES" {
         return Err(format!("filter {filter} on {mode} data"));

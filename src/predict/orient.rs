@@ -180,7 +180,12 @@ pub struct Found {
 /// The turn that makes the mesh most like a rigged one in `lib`. `rows` are surface
 /// samples (`x y z nx ny nz`) and `bounds` the box, both in the unit frame of the mesh as
 /// given; sampling commutes with an axis permutation, so they are turned, not redrawn.
-pub fn find_up(lib: &Library, rows: &[[f32; 6]], bounds: (Vec3, Vec3), category: Option<&str>) -> Found {
+pub fn find_up(
+    lib: &Library,
+    rows: &[[f32; 6]],
+    bounds: (Vec3, Vec3),
+    category: Option<&str>,
+) -> Found {
     let mut distances = Vec::with_capacity(AXES.len());
     for &up in &AXES {
         let turn = Turn::bringing_up(up);
@@ -238,14 +243,25 @@ mod tests {
     #[test]
     fn a_rotated_data_set_is_undone_by_the_turn_for_its_up_axis() {
         // eval --rotate x90 makes a Y-up character Z-up; z90 makes it -X-up.
-        let cases = [("x90", Axis::PosZ), ("x-90", Axis::NegZ), ("z90", Axis::NegX), ("z-90", Axis::PosX)];
+        let cases = [
+            ("x90", Axis::PosZ),
+            ("x-90", Axis::NegZ),
+            ("z90", Axis::NegX),
+            ("z-90", Axis::PosX),
+        ];
         let p = Vec3::new(1.0, 2.0, 3.0);
         for (rot, up) in cases {
             let r = Turn::parse_rotation(rot).unwrap();
             assert_eq!(Turn::bringing_up(up).apply(r.apply(p)), p, "{rot}");
         }
-        assert_eq!(Turn::parse_rotation("x180").unwrap().apply(p), Vec3::new(1.0, -2.0, -3.0));
-        assert_eq!(Turn::parse_rotation("y90").unwrap().apply(Vec3::X), -Vec3::Z);
+        assert_eq!(
+            Turn::parse_rotation("x180").unwrap().apply(p),
+            Vec3::new(1.0, -2.0, -3.0)
+        );
+        assert_eq!(
+            Turn::parse_rotation("y90").unwrap().apply(Vec3::X),
+            -Vec3::Z
+        );
         assert!(Turn::parse_rotation("q90").is_none());
         assert!(Turn::parse_rotation("x45").is_none());
     }

@@ -22,13 +22,18 @@ async fn raw(app: &TestApp, request: &[u8]) -> (u16, Value) {
         .and_then(|c| c.parse().ok())
         .unwrap_or_else(|| panic!("no status line in {:?}", &text[..text.len().min(300)]));
     let body = text.split_once("\r\n\r\n").map_or("", |(_, b)| b);
-    let json = serde_json::from_str(body.trim())
-        .unwrap_or_else(|_| panic!("{status}: body is not JSON: {:?}", &body[..body.len().min(300)]));
+    let json = serde_json::from_str(body.trim()).unwrap_or_else(|_| {
+        panic!(
+            "{status}: body is not JSON: {:?}",
+            &body[..body.len().min(300)]
+        )
+    });
     (status, json)
 }
 
 fn get(target: &str, extra_headers: &str) -> Vec<u8> {
-    format!("GET {target} HTTP/1.1\r\nhost: x\r\n{extra_headers}connection: close\r\n\r\n").into_bytes()
+    format!("GET {target} HTTP/1.1\r\nhost: x\r\n{extra_headers}connection: close\r\n\r\n")
+        .into_bytes()
 }
 
 fn assert_refusal((status, body): (u16, Value), want: u16, error_type: &str) {
@@ -37,7 +42,10 @@ fn assert_refusal((status, body): (u16, Value), want: u16, error_type: &str) {
         (want, error_type),
         "{body}"
     );
-    assert!(body["error"].as_str().is_some_and(|m| !m.is_empty()), "{body}");
+    assert!(
+        body["error"].as_str().is_some_and(|m| !m.is_empty()),
+        "{body}"
+    );
 }
 
 #[tokio::test]
@@ -51,13 +59,33 @@ async fn long_urls_large_headers_and_bad_paths_get_json_refusals() {
     assert_refusal(raw(&app, &get(&long_path, "")).await, 414, "uri_too_long");
 
     let big_header = format!("x-big: {}\r\n", "h".repeat(1 << 20));
-    assert_refusal(raw(&app, &get("/healthz", &big_header)).await, 431, "headers_too_large");
+    assert_refusal(
+        raw(&app, &get("/healthz", &big_header)).await,
+        431,
+        "headers_too_large",
+    );
     let many: String = (0..20_000).map(|i| format!("x-h{i}: v\r\n")).collect();
-    assert_refusal(raw(&app, &get("/healthz", &many)).await, 431, "headers_too_large");
+    assert_refusal(
+        raw(&app, &get("/healthz", &many)).await,
+        431,
+        "headers_too_large",
+    );
 
-    assert_refusal(raw(&app, &get("/v1/jobs/%ZZ%ff", "")).await, 400, "invalid_path");
-    assert_refusal(raw(&app, &get("/v1/jobs/%ff%fe/result.glb", "")).await, 400, "invalid_path");
-    assert_refusal(raw(&app, &get("/no/such/route", "")).await, 404, "not_found");
+    assert_refusal(
+        raw(&app, &get("/v1/jobs/%ZZ%ff", "")).await,
+        400,
+        "invalid_path",
+    );
+    assert_refusal(
+        raw(&app, &get("/v1/jobs/%ff%fe/result.glb", "")).await,
+        400,
+        "invalid_path",
+    );
+    assert_refusal(
+        raw(&app, &get("/no/such/route", "")).await,
+        404,
+        "not_found",
+    );
 
     // Ordinary requests are untouched by the limits.
     let ok = app.get("/healthz").await;

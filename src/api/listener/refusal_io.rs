@@ -38,7 +38,9 @@ impl<T> JsonRefusals<T> {
 fn replacement(head: &[u8], in_url: bool) -> Option<Vec<u8>> {
     let text = std::str::from_utf8(head).ok()?;
     let (mut status_line, rest) = text.split_once("\r\n")?;
-    let rest = rest.strip_suffix("\r\n\r\n").or(rest.strip_suffix("\r\n"))?;
+    let rest = rest
+        .strip_suffix("\r\n\r\n")
+        .or(rest.strip_suffix("\r\n"))?;
     let version = status_line.get(..8)?;
     let mut code = status_line.strip_prefix("HTTP/1.")?.get(2..5)?;
     let url_line = format!("{version} 414 URI Too Long");
@@ -169,12 +171,26 @@ mod tests {
         // The service's own errors have bodies; successes and other statuses pass.
         let own = b"HTTP/1.1 404 Not Found\r\ncontent-type: application/json\r\ncontent-length: 52\r\n\r\n";
         assert_eq!(replacement(own, false), None);
-        assert_eq!(replacement(b"HTTP/1.1 204 No Content\r\ncontent-length: 0\r\n\r\n", false), None);
-        assert_eq!(replacement(b"HTTP/1.1 408 Request Timeout\r\ncontent-length: 0\r\n\r\n", false), None);
+        assert_eq!(
+            replacement(
+                b"HTTP/1.1 204 No Content\r\ncontent-length: 0\r\n\r\n",
+                false
+            ),
+            None
+        );
+        assert_eq!(
+            replacement(
+                b"HTTP/1.1 408 Request Timeout\r\ncontent-length: 0\r\n\r\n",
+                false
+            ),
+            None
+        );
         // A head that overflowed inside the request line was a URL too long.
         let url = String::from_utf8(replacement(bare, true).unwrap()).unwrap();
         assert!(url.starts_with("HTTP/1.1 414 URI Too Long\r\n"), "{url}");
         assert!(url.contains("uri_too_long"));
-        assert!(!is_error_head(b"HTTP/1.1 400 Bad Request\r\ncontent-length: 0\r\n\r\n{}"));
+        assert!(!is_error_head(
+            b"HTTP/1.1 400 Bad Request\r\ncontent-length: 0\r\n\r\n{}"
+        ));
     }
 }

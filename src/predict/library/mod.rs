@@ -580,7 +580,11 @@ mod tests {
         let bytes = std::fs::read(&p).unwrap();
         for cut in [3, 6, 11, 40, bytes.len() - 1] {
             std::fs::write(&p, &bytes[..cut]).unwrap();
-            assert_eq!(Library::load(&p).unwrap_err().code(), "library_malformed", "{cut}");
+            assert_eq!(
+                Library::load(&p).unwrap_err().code(),
+                "library_malformed",
+                "{cut}"
+            );
         }
         let mut longer = bytes.clone();
         longer.push(0);
