@@ -14,5 +14,8 @@ setup:
 run: runtime
 	cargo run --release -- serve $(ARGS)
 
+# Format and lints first (cheap, and a red one is the first thing to fix), then every test.
 test: setup
+	cargo fmt --check
+	cargo clippy --release --all-targets -- -D warnings
 	cargo test --release --no-fail-fast

@@ -85,7 +85,7 @@ pub fn read_manifest(dataset: &Path) -> Result<Vec<ManifestEntry>, EvalError> {
         .collect())
 }
 
-/// `file -> artist` from an `ARTISTS.tsv` (header `file	artist`); empty when absent.
+/// `file -> artist` from an `ARTISTS.tsv` (header `file`, tab, `artist`); empty when absent.
 fn read_artists(path: &Path) -> BTreeMap<String, String> {
     let Ok(text) = std::fs::read_to_string(path) else {
         return BTreeMap::new();

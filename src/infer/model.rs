@@ -923,6 +923,8 @@ impl SkeletonModel {
     /// Runs the decoder and hands the new keys and values (one (B, H, P + T, dh) view per
     /// cache tensor, checked) to `take` while the outputs are alive. Returns the logits of
     /// positions `from..T` (the last one when `from` is past it).
+    // The arguments are the decoder graph's own inputs; a struct would only rename them.
+    #[allow(clippy::too_many_arguments)]
     fn run_decoder<'v, R>(
         &mut self,
         ids: Array2<i64>,

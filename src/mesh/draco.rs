@@ -238,7 +238,7 @@ pub(super) fn decode(
                 ))
             })?
             .clone();
-        if !cache.contains_key(&view) {
+        if let std::collections::hash_map::Entry::Vacant(e) = cache.entry(view) {
             let d = decode_stream(view_bytes(json, buffers, view)?, limits)?;
             decoded_bytes += (d.points * 64 + d.indices.len() * 4) as u64;
             if decoded_bytes > limits.max_bytes {
@@ -247,7 +247,7 @@ pub(super) fn decode(
                     cap: limits.max_bytes,
                 });
             }
-            cache.insert(view, d);
+            e.insert(d);
         }
         let d = &cache[&view];
         // Indices.
@@ -311,7 +311,7 @@ pub(super) fn decode(
                         "mesh {m} primitive {p}: Draco attribute {name} is not an attribute"
                     ))
                 })?;
-            let acc_json = accessor(json, a).ok_or_else(|| MeshError::IndexOutOfRange {
+            let acc_json = accessor(json, a).ok_or(MeshError::IndexOutOfRange {
                 what: "accessor",
                 index: a as u64,
             })?;

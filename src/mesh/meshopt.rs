@@ -165,7 +165,7 @@ fn decode_view(
     let dst = words.as_mut_ptr().cast::<std::ffi::c_void>();
     let rc = match mode {
         "ATTRIBUTES" => {
-            if stride == 0 || stride > 256 || stride % 4 != 0 {
+            if stride == 0 || stride > 256 || !stride.is_multiple_of(4) {
                 return Err(format!(
                     "ATTRIBUTES with byteStride {stride} (4 to 256, by 4)"
                 ));
@@ -178,7 +178,7 @@ fn decode_view(
                 return Err(format!("{mode} with byteStride {stride} (2 or 4)"));
             }
             if mode == "TRIANGLES" {
-                if n % 3 != 0 {
+                if !n.is_multiple_of(3) {
                     return Err(format!(
                         "TRIANGLES with a count of {n}, not a multiple of 3"
                     ));
@@ -204,7 +204,7 @@ fn decode_view(
         "NONE" => true,
         "OCTAHEDRAL" | "COLOR" => stride == 4 || stride == 8,
         "QUATERNION" => stride == 8,
-        "EXPONENTIAL" => stride % 4 == 0,
+        "EXPONENTIAL" => stride.is_multiple_of(4),
         other => return Err(format!("unknown filter {other:?}")),
     };
     if filter == "COLOR" && name != "KHR_meshopt_compression" {

@@ -163,7 +163,8 @@ fn validate_geometry(mesh: &Mesh) -> Result<(), MeshError> {
         .iter()
         .map(|t| corners_area(t.map(|i| norm.apply(mesh.positions[i as usize]))) as f64)
         .sum();
-    if !(area > 1e-12) {
+    // NaN area (from non-finite input) is degenerate too, hence not `area <= 1e-12`.
+    if area.is_nan() || area <= 1e-12 {
         return Err(MeshError::Degenerate);
     }
     Ok(())

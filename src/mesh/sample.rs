@@ -82,17 +82,19 @@ mod tests {
     use super::*;
 
     fn quad() -> Mesh {
-        let mut m = Mesh::default();
-        m.positions = vec![
-            Vec3::ZERO,
-            Vec3::X,
-            Vec3::new(1.0, 1.0, 0.0),
-            Vec3::Y,
-            Vec3::new(10.0, 0.0, 0.0),
-            Vec3::new(12.0, 0.0, 0.0),
-            Vec3::new(10.0, 2.0, 0.0),
-        ];
-        m.triangles = vec![[0, 1, 2], [0, 2, 3], [4, 5, 6]];
+        let mut m = Mesh {
+            positions: vec![
+                Vec3::ZERO,
+                Vec3::X,
+                Vec3::new(1.0, 1.0, 0.0),
+                Vec3::Y,
+                Vec3::new(10.0, 0.0, 0.0),
+                Vec3::new(12.0, 0.0, 0.0),
+                Vec3::new(10.0, 2.0, 0.0),
+            ],
+            triangles: vec![[0, 1, 2], [0, 2, 3], [4, 5, 6]],
+            ..Mesh::default()
+        };
         m.compute_normals();
         m
     }

@@ -33,13 +33,13 @@ pub fn local_matrix(node: &Node) -> Result<Mat4, MeshError> {
     Ok(m)
 }
 
+/// Per node: its world matrix (None when unreachable) and its parent.
+pub type NodeFrames = (Vec<Option<Mat4>>, Vec<Option<usize>>);
+
 /// World matrices of every node reachable from the scene roots, plus the parent of each
 /// node. Fails on cycles and on nodes with two parents, which glTF forbids and which
 /// would otherwise make traversal loop or duplicate geometry without bound.
-pub fn world_matrices(
-    doc: &Document,
-    limits: &Limits,
-) -> Result<(Vec<Option<Mat4>>, Vec<Option<usize>>), MeshError> {
+pub fn world_matrices(doc: &Document, limits: &Limits) -> Result<NodeFrames, MeshError> {
     let nodes = &doc.root.nodes;
     if nodes.len() > limits.max_nodes {
         return Err(MeshError::Invalid(format!(
@@ -430,7 +430,7 @@ fn add_primitive(
             true
         }
         _ => {
-            mesh.normals.extend(std::iter::repeat(Vec3::ZERO).take(n));
+            mesh.normals.extend(std::iter::repeat_n(Vec3::ZERO, n));
             false
         }
     };

@@ -59,7 +59,7 @@ impl<'a> PointGrid<'a> {
                         if let Some(ids) = self.cells.get(&(c.0 + dx, c.1 + dy, c.2 + dz)) {
                             for &i in ids {
                                 let d = self.points[i as usize].distance(q);
-                                if best.map_or(true, |(_, bd)| d < bd) {
+                                if best.is_none_or(|(_, bd)| d < bd) {
                                     best = Some((i as usize, d));
                                 }
                             }

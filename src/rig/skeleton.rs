@@ -140,10 +140,10 @@ impl Skeleton {
     /// leaves and branching joints extend by half their parent-to-joint offset.
     pub fn infer_tails(&mut self) {
         let children = self.children();
-        for i in 0..self.bones.len() {
+        for (i, kids) in children.iter().enumerate() {
             let head = self.bones[i].head;
-            let tail = if children[i].len() == 1 {
-                self.bones[children[i][0]].head
+            let tail = if kids.len() == 1 {
+                self.bones[kids[0]].head
             } else if let Some(p) = self.bones[i].parent {
                 head + (head - self.bones[p].head) * 0.5
             } else {
