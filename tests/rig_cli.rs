@@ -1,0 +1,70 @@
+//! `rigserve rig` as a user runs it, with the shipped models and library, on a dev
+//! humanoid of `../shared/rigs` (skipped without it or without ONNX Runtime).
+mod common;
+
+use std::path::Path;
+use std::process::Command;
+
+fn bone_names(mesh: &Path, extra: &[&str]) -> Vec<String> {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("bones.json");
+    let run = Command::new(env!("CARGO_BIN_EXE_rigserve"))
+        .current_dir(env!("CARGO_MANIFEST_DIR"))
+        .arg("rig")
+        .arg(mesh)
+        .args(["--skeleton-only", "--bones"])
+        .arg(&out)
+        .args(extra)
+        .output()
+        .unwrap();
+    assert!(
+        run.status.success(),
+        "{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    let tree: serde_json::Value = serde_json::from_slice(&std::fs::read(&out).unwrap()).unwrap();
+    tree["bones"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|b| b["name"].as_str().unwrap().to_string())
+        .collect()
+}
+
+/// `--template mixamo` decodes the Mixamo body template, so Mixamo clips find their bones;
+/// `--template none` decodes freely; an unknown name is refused by the parser.
+#[test]
+fn rig_template_names_the_bones_the_way_asked() {
+    let Some(dir) = common::shared_rigs() else {
+        return;
+    };
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    if !root.join(".onnxruntime/libonnxruntime.so.1.31.1").is_file() {
+        eprintln!("SKIPPED: .onnxruntime/ is absent (scripts/setup.sh fetches it)");
+        return;
+    }
+    let king = dir.join("modular_men__King.glb");
+    let mixamo = bone_names(&king, &["--template", "mixamo"]);
+    for want in [
+        "mixamorig:Hips",
+        "mixamorig:Spine",
+        "mixamorig:Head",
+        "mixamorig:LeftArm",
+    ] {
+        assert!(
+            mixamo.iter().any(|n| n == want),
+            "{want} missing: {mixamo:?}"
+        );
+    }
+    let free = bone_names(&king, &["--template", "none"]);
+    assert!(!free.iter().any(|n| n == "mixamorig:Hips"), "{free:?}");
+
+    let run = Command::new(env!("CARGO_BIN_EXE_rigserve"))
+        .arg("rig")
+        .arg(&king)
+        .args(["--template", "unity"])
+        .output()
+        .unwrap();
+    assert!(!run.status.success());
+    assert!(String::from_utf8_lossy(&run.stderr).contains("--template"));
+}
