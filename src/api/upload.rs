@@ -196,15 +196,20 @@ pub fn declared_format(content_type: Option<&str>) -> Result<Option<Format>, Api
         None | Some("") | Some("application/octet-stream") => Ok(None),
         Some("model/gltf-binary") | Some("model/vrm") => Ok(Some(Format::Glb)),
         Some("model/gltf+json") => Ok(Some(Format::Gltf)),
-        Some("model/obj") | Some("text/plain") | Some("application/x-tgif") => {
-            Ok(Some(Format::Obj))
-        }
+        Some("model/obj") | Some("application/x-tgif") => Ok(Some(Format::Obj)),
+        // Text could be OBJ, ASCII PLY or ASCII STL: the magic decides.
+        Some("text/plain") => Ok(None),
+        Some("model/stl")
+        | Some("application/sla")
+        | Some("model/x.stl-binary")
+        | Some("model/x.stl-ascii") => Ok(Some(Format::Stl)),
+        Some("model/ply") | Some("application/ply") | Some("model/x-ply") => Ok(Some(Format::Ply)),
         Some(other) => Err(ApiError::new(
             StatusCode::UNSUPPORTED_MEDIA_TYPE,
             "unsupported_media_type",
             format!(
                 "{other} is not a mesh type: send model/gltf-binary (GLB, VRM), \
-                 model/gltf+json, model/obj, or application/octet-stream"
+                 model/gltf+json, model/obj, model/ply, model/stl, or application/octet-stream"
             ),
         )),
     }

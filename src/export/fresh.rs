@@ -1,8 +1,9 @@
-//! Inputs without a glTF document (OBJ): a new glTF holding the merged mesh.
+//! Inputs without a glTF document (OBJ, PLY, STL): a new glTF holding the merged mesh.
 //!
 //! One node, one mesh, one primitive with POSITION, NORMAL and indices exactly as
-//! [`Mesh`] holds them (world space, so the skin binds with `to_world` = identity), and a
-//! plain grey material. OBJ UVs and materials are not kept: [`Mesh`] does not carry them.
+//! [`Mesh`] holds them (world space, so the skin binds with `to_world` = identity), PLY
+//! vertex colours as `COLOR_0`, and a plain material (white where colours tint it, grey
+//! otherwise). OBJ UVs and materials are not kept: [`Mesh`] does not carry them.
 
 use super::builder::{Builder, ARRAY_BUFFER, ELEMENT_ARRAY_BUFFER, FLOAT, UNSIGNED_INT};
 use super::weights::Packed;
@@ -14,6 +15,7 @@ use serde_json::{json, Map, Value};
 
 pub(crate) fn build(
     mesh: &Mesh,
+    colors: &[[f32; 4]],
     skel: &Skeleton,
     packed: &[Packed],
     opts: &ExportOptions,
@@ -23,7 +25,8 @@ pub(crate) fn build(
         "materials": [{
             "name": "default",
             "pbrMetallicRoughness": {
-                "baseColorFactor": [0.8, 0.8, 0.8, 1.0],
+                // COLOR_0 multiplies the base colour, so coloured meshes get white.
+                "baseColorFactor": if colors.is_empty() { [0.8, 0.8, 0.8, 1.0] } else { [1.0; 4] },
                 "metallicFactor": 0.0,
                 "roughnessFactor": 0.8
             }
@@ -68,6 +71,16 @@ pub(crate) fn build(
             .collect();
         attributes["NORMAL"] = b
             .push_accessor(&nrm_bytes, Some(ARRAY_BUFFER), FLOAT, n, "VEC3")?
+            .into();
+    }
+    if colors.len() == n {
+        let bytes: Vec<u8> = colors
+            .iter()
+            .flatten()
+            .flat_map(|c| c.to_le_bytes())
+            .collect();
+        attributes["COLOR_0"] = b
+            .push_accessor(&bytes, Some(ARRAY_BUFFER), FLOAT, n, "VEC4")?
             .into();
     }
     let (j, w) = b.push_skin_attributes(packed, skel.len())?;

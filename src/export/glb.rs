@@ -35,7 +35,7 @@ pub fn export_glb(
     let packed = pack_all(&asset.mesh, skeleton, weights, opts.max_influences)?;
     let built = match &asset.document {
         Some(doc) => rewrite::rewrite(doc, &asset.mesh, skeleton, &packed, opts)?,
-        None => fresh::build(&asset.mesh, skeleton, &packed, opts)?,
+        None => fresh::build(&asset.mesh, &asset.colors, skeleton, &packed, opts)?,
     };
     container::write_glb(&serde_json::Value::Object(built.root), &built.bin)
 }

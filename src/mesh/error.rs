@@ -4,7 +4,7 @@ use thiserror::Error;
 /// `code()` that the API reports as `error_type` and failed jobs carry as their code.
 #[derive(Debug, Error, Clone, PartialEq)]
 pub enum MeshError {
-    #[error("the file is not a mesh format rigserve reads (GLB, glTF, VRM or OBJ)")]
+    #[error("the file is not a mesh format rigserve reads (GLB, glTF, VRM, OBJ, PLY or STL)")]
     UnknownFormat,
     #[error("the file is empty")]
     Empty,
@@ -58,6 +58,10 @@ pub enum MeshError {
     BadComponentType(String),
     #[error("compressed glTF data does not decode: {0}")]
     CompressedDataInvalid(String),
+    #[error("PLY: {0}")]
+    Ply(String),
+    #[error("STL: {0}")]
+    Stl(String),
 }
 
 impl MeshError {
@@ -91,6 +95,8 @@ impl MeshError {
             UnsupportedRequiredExtension(_) => "unsupported_required_extension",
             BadComponentType(_) => "unsupported_component_type",
             CompressedDataInvalid(_) => "compressed_data_invalid",
+            Ply(_) => "ply_invalid",
+            Stl(_) => "stl_invalid",
         }
     }
 }

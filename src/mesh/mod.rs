@@ -11,8 +11,11 @@ mod json;
 mod meshopt;
 mod normalize;
 mod obj;
+mod plain;
+mod ply;
 pub mod sample;
 pub mod scene;
+mod stl;
 
 pub use error::MeshError;
 pub use normalize::Normalization;
@@ -46,6 +49,8 @@ pub enum Format {
     Gltf,
     Vrm,
     Obj,
+    Ply,
+    Stl,
 }
 
 /// Where a range of merged vertices came from.
@@ -82,12 +87,21 @@ pub struct Asset {
     pub format: Format,
     pub mesh: Mesh,
     pub document: Option<gltf::Document>,
+    /// Per vertex of `mesh`, RGBA in 0..1, from formats that carry colours outside a
+    /// glTF document (PLY); written as `COLOR_0`. Empty otherwise.
+    pub colors: Vec<[f32; 4]>,
 }
 
 /// Guesses the format from the first bytes (and the file name, for OBJ vs. JSON).
 pub fn sniff(bytes: &[u8]) -> Option<Format> {
     if gltf::is_glb(bytes) {
         return Some(Format::Glb);
+    }
+    if ply::is_ply(bytes) {
+        return Some(Format::Ply);
+    }
+    if stl::is_binary(bytes) {
+        return Some(Format::Stl);
     }
     let head = &bytes[..bytes.len().min(4096)];
     let text = std::str::from_utf8(head).ok().or_else(|| {
@@ -97,6 +111,9 @@ pub fn sniff(bytes: &[u8]) -> Option<Format> {
     let t = text.trim_start_matches('\u{feff}').trim_start();
     if t.starts_with('{') {
         return Some(Format::Gltf);
+    }
+    if stl::is_ascii(t) {
+        return Some(Format::Stl);
     }
     let obj_like = t.lines().any(|l| {
         let l = l.trim_start();
@@ -120,8 +137,15 @@ pub fn load(bytes: &[u8], limits: &Limits) -> Result<Asset, MeshError> {
         });
     }
     let format = sniff(bytes).ok_or(MeshError::UnknownFormat)?;
+    let mut colors = Vec::new();
     let (format, mesh, document) = match format {
         Format::Obj => (Format::Obj, obj::load(bytes, limits)?, None),
+        Format::Stl => (Format::Stl, stl::load(bytes, limits)?, None),
+        Format::Ply => {
+            let (mesh, c) = ply::load(bytes, limits)?;
+            colors = c;
+            (Format::Ply, mesh, None)
+        }
         Format::Glb | Format::Gltf | Format::Vrm => {
             let doc = if format == Format::Glb {
                 gltf::parse_glb(bytes, limits)?
@@ -143,6 +167,7 @@ pub fn load(bytes: &[u8], limits: &Limits) -> Result<Asset, MeshError> {
         format,
         mesh,
         document,
+        colors,
     })
 }
 

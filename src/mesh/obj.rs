@@ -1,8 +1,8 @@
 //! Wavefront OBJ. Vertices are welded by position index: OBJ splits a vertex wherever
 //! its UV or normal changes, which would cut the surface open at every texture seam.
 
-use super::{Limits, Mesh, MeshError, Part};
-use glam::{Mat4, Vec3};
+use super::{Limits, Mesh, MeshError};
+use glam::Vec3;
 
 pub fn load(bytes: &[u8], limits: &Limits) -> Result<Mesh, MeshError> {
     let text = String::from_utf8_lossy(bytes);
@@ -90,20 +90,7 @@ pub fn load(bytes: &[u8], limits: &Limits) -> Result<Mesh, MeshError> {
     if faces.is_empty() {
         return Err(MeshError::EmptyScene);
     }
-    // Keep only referenced positions, so stray points cannot stretch the bounds.
-    let mut remap = vec![u32::MAX; positions.len()];
-    let mut mesh = Mesh::default();
-    for f in &mut faces {
-        for i in f.iter_mut() {
-            if remap[*i as usize] == u32::MAX {
-                remap[*i as usize] = mesh.positions.len() as u32;
-                mesh.positions.push(positions[*i as usize]);
-            }
-            *i = remap[*i as usize];
-        }
-    }
-    mesh.triangles = faces;
-    mesh.compute_normals();
+    let (mut mesh, remap) = super::plain::from_faces(&positions, faces);
     if !corner_normals.is_empty() {
         let mut sum = vec![Vec3::ZERO; mesh.positions.len()];
         for (v, n) in corner_normals {
@@ -115,18 +102,6 @@ pub fn load(bytes: &[u8], limits: &Limits) -> Result<Mesh, MeshError> {
             }
         }
     }
-    mesh.parts.push(Part {
-        node: None,
-        mesh: 0,
-        primitive: 0,
-        name: None,
-        first_vertex: 0,
-        vertex_count: mesh.positions.len() as u32,
-        first_triangle: 0,
-        triangle_count: mesh.triangles.len() as u32,
-        to_world: Mat4::IDENTITY,
-        skin: None,
-    });
     Ok(mesh)
 }
 
