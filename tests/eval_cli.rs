@@ -167,6 +167,21 @@ fn rigs_and_runtime() -> Option<(std::path::PathBuf, &'static Path)> {
     Some((dir, root))
 }
 
+/// A data set of `(file, category)` rows of `dir`, copied into a temporary folder as a
+/// `dev` split (the folder, and the data set inside it).
+fn dev_subset(dir: &Path, rows: &[(String, String)]) -> (tempfile::TempDir, std::path::PathBuf) {
+    let tmp = tempfile::tempdir().unwrap();
+    let data = tmp.path().join("data");
+    std::fs::create_dir_all(&data).unwrap();
+    let mut manifest = String::from("file\tsplit\tcategory\n");
+    for (file, category) in rows {
+        std::fs::copy(dir.join(file), data.join(file)).unwrap();
+        manifest += &format!("{file}\tdev\t{category}\n");
+    }
+    std::fs::write(data.join("manifest.tsv"), manifest).unwrap();
+    (tmp, data)
+}
+
 /// The model-driven mode, with the tiny random-weight fixture: every mesh must get a
 /// valid skeleton and finite scores (the fixture's skeletons are nonsense; the plumbing
 /// is what is under test).
@@ -175,19 +190,13 @@ fn skeleton_only_eval_runs_the_model_on_every_mesh() {
     let Some((dir, _)) = rigs_and_runtime() else {
         return;
     };
-    let tmp = tempfile::tempdir().unwrap();
-    let data = tmp.path().join("data");
-    std::fs::create_dir_all(&data).unwrap();
-    let mut manifest = String::from("file\tsplit\tcategory\n");
-    for e in common::manifest(&dir)
-        .iter()
+    let rows: Vec<(String, String)> = common::manifest(&dir)
+        .into_iter()
         .filter(|e| e.split == "dev")
         .take(3)
-    {
-        std::fs::copy(dir.join(&e.file), data.join(&e.file)).unwrap();
-        manifest += &format!("{}\tdev\t{}\n", e.file, e.category);
-    }
-    std::fs::write(data.join("manifest.tsv"), manifest).unwrap();
+        .map(|e| (e.file, e.category))
+        .collect();
+    let (tmp, data) = dev_subset(&dir, &rows);
     let out = tmp.path().join("m.json");
     let r = run_eval(
         [
@@ -338,20 +347,15 @@ fn a_turned_data_set_rigs_as_upright_when_its_up_axis_is_given_or_found() {
     let Some((dir, _)) = rigs_and_runtime() else {
         return;
     };
-    let tmp = tempfile::tempdir().unwrap();
-    let data = tmp.path().join("data");
-    std::fs::create_dir_all(&data).unwrap();
-    let mut manifest = String::from("file\tsplit\tcategory\n");
-    for f in [
+    let rows: Vec<(String, String)> = [
         "modular_men__King.glb",
         "modular_men__Worker.glb",
         "Animated_Women_Characters__Female_Dress.glb",
         "Animated_Women_Characters__Female_Casual.glb",
-    ] {
-        std::fs::copy(dir.join(f), data.join(f)).unwrap();
-        manifest += &format!("{f}\tdev\thumanoid\n");
-    }
-    std::fs::write(data.join("manifest.tsv"), manifest).unwrap();
+    ]
+    .map(|f| (f.to_string(), "humanoid".to_string()))
+    .into();
+    let (tmp, data) = dev_subset(&dir, &rows);
     let run = |name: &str, extra: &[&str]| {
         let mut args: Vec<&OsStr> = vec![
             "--skeleton-only".as_ref(),
