@@ -25,6 +25,9 @@ pub enum BenchCommand {
     /// Geometric skinning of one rigged mesh with its own skeleton: voxelization,
     /// geodesic distances and weights, timed separately.
     Skin(SkinArgs),
+    /// A full `rigserve rig`, whole process, on one mesh subdivided to several sizes:
+    /// wall time and peak memory by mesh size.
+    Rig(super::bench_rig::RigArgs),
 }
 
 #[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
@@ -102,6 +105,7 @@ pub fn run(cmd: BenchCommand) -> anyhow::Result<()> {
         BenchCommand::Decode(a) => decode(a),
         BenchCommand::Skeleton(a) => skeleton(a),
         BenchCommand::Skin(a) => skin(a),
+        BenchCommand::Rig(a) => super::bench_rig::run(a),
     }
 }
 

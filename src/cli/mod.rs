@@ -1,6 +1,7 @@
 //! Subcommands. Each one is a thin shell over the library, so tests drive the same code.
 
 mod bench;
+mod bench_rig;
 mod dataset;
 mod eval;
 mod inspect;
