@@ -7,7 +7,6 @@ use super::LimitArgs;
 use anyhow::{bail, Context};
 use rigserve::mesh::{self, Mesh};
 use serde::Serialize;
-use std::collections::HashMap;
 use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -52,7 +51,7 @@ pub fn run(a: RigArgs) -> anyhow::Result<()> {
     for &level in &a.levels {
         let mut m = asset.mesh.clone();
         for _ in 0..level {
-            m = subdivide(&m);
+            m = m.subdivided();
         }
         let input = tmp.path().join(format!("level{level}.obj"));
         write_obj(&m, &input)?;
@@ -132,32 +131,6 @@ fn timed_child(
     Ok((secs, usage.ru_maxrss))
 }
 
-/// Splits every triangle into four at its edge midpoints (shared between neighbours, so
-/// the surface stays closed where it was): the shape is unchanged, only denser.
-pub fn subdivide(m: &Mesh) -> Mesh {
-    let mut positions = m.positions.clone();
-    let mut mid: HashMap<(u32, u32), u32> = HashMap::new();
-    let mut midpoint = |a: u32, b: u32, positions: &mut Vec<glam::Vec3>| {
-        let key = (a.min(b), a.max(b));
-        *mid.entry(key).or_insert_with(|| {
-            positions.push((positions[a as usize] + positions[b as usize]) * 0.5);
-            positions.len() as u32 - 1
-        })
-    };
-    let mut triangles = Vec::with_capacity(m.triangles.len() * 4);
-    for &[a, b, c] in &m.triangles {
-        let ab = midpoint(a, b, &mut positions);
-        let bc = midpoint(b, c, &mut positions);
-        let ca = midpoint(c, a, &mut positions);
-        triangles.extend([[a, ab, ca], [ab, b, bc], [ca, bc, c], [ab, bc, ca]]);
-    }
-    Mesh {
-        positions,
-        triangles,
-        ..Mesh::default()
-    }
-}
-
 fn write_obj(m: &Mesh, path: &Path) -> anyhow::Result<()> {
     let mut w = std::io::BufWriter::new(std::fs::File::create(path)?);
     for p in &m.positions {
@@ -168,32 +141,4 @@ fn write_obj(m: &Mesh, path: &Path) -> anyhow::Result<()> {
     }
     w.flush()?;
     Ok(())
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-    use glam::Vec3;
-
-    #[test]
-    fn subdividing_keeps_the_surface_and_shares_midpoints() {
-        let m = Mesh {
-            positions: vec![Vec3::ZERO, Vec3::X, Vec3::Y, Vec3::Z],
-            triangles: vec![[0, 1, 2], [0, 2, 3], [0, 3, 1], [1, 3, 2]],
-            ..Mesh::default()
-        };
-        let area = |m: &Mesh| -> f32 {
-            m.triangles
-                .iter()
-                .map(|t| {
-                    let [a, b, c] = t.map(|i| m.positions[i as usize]);
-                    (b - a).cross(c - a).length() / 2.0
-                })
-                .sum()
-        };
-        let s = subdivide(&m);
-        // A tetrahedron: 4 + 6 edge midpoints, 16 faces.
-        assert_eq!((s.positions.len(), s.triangles.len()), (10, 16));
-        assert!((area(&s) - area(&m)).abs() < 1e-6);
-    }
 }

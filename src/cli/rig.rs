@@ -215,6 +215,10 @@ pub struct SkinArgs {
     /// Influences below this weight are dropped.
     #[arg(long, default_value_t = SkinConfig::default().min_weight)]
     pub min_weight: f32,
+    /// Meshes with more distinct positions skin on a coarser copy of this many, every
+    /// vertex taking its cluster's weights (0: always full resolution).
+    #[arg(long, default_value_t = SkinConfig::default().max_vertices)]
+    pub skin_max_vertices: usize,
     /// auto: the learned skin model when `--skin-model` holds one, else geometric weights;
     /// learned: the model or an error; geometric: never the model.
     #[arg(long, value_enum, default_value_t = SkinMethod::Auto)]
@@ -260,6 +264,7 @@ impl SkinArgs {
             falloff: self.falloff,
             softness: self.softness,
             min_weight: self.min_weight,
+            max_vertices: self.skin_max_vertices,
             ..SkinConfig::default()
         }
     }

@@ -204,6 +204,32 @@ fn corners_area([a, b, c]: [Vec3; 3]) -> f32 {
 }
 
 impl Mesh {
+    /// Every triangle split into four at its edge midpoints (shared between neighbours,
+    /// so the surface stays closed where it was): the same shape, denser, for measuring
+    /// and testing high-poly inputs. Positions and triangles only.
+    pub fn subdivided(&self) -> Mesh {
+        let mut positions = self.positions.clone();
+        let mut mid: std::collections::HashMap<(u32, u32), u32> = Default::default();
+        let mut midpoint = |a: u32, b: u32, positions: &mut Vec<Vec3>| {
+            *mid.entry((a.min(b), a.max(b))).or_insert_with(|| {
+                positions.push((positions[a as usize] + positions[b as usize]) * 0.5);
+                positions.len() as u32 - 1
+            })
+        };
+        let mut triangles = Vec::with_capacity(self.triangles.len() * 4);
+        for &[a, b, c] in &self.triangles {
+            let ab = midpoint(a, b, &mut positions);
+            let bc = midpoint(b, c, &mut positions);
+            let ca = midpoint(c, a, &mut positions);
+            triangles.extend([[a, ab, ca], [ab, b, bc], [ca, bc, c], [ab, bc, ca]]);
+        }
+        Mesh {
+            positions,
+            triangles,
+            ..Mesh::default()
+        }
+    }
+
     /// Area-weighted vertex normals, for inputs that lack them.
     pub fn compute_normals(&mut self) {
         let mut n = vec![Vec3::ZERO; self.positions.len()];

@@ -70,7 +70,16 @@ pub struct SkinConfig {
     /// A joint is outside the mesh when it is farther than this fraction of the mesh's
     /// longest side beyond its bounding box; more than half the joints outside is refused.
     pub outside_margin: f32,
+    /// Meshes with more distinct positions are skinned on a coarser copy of at most this
+    /// many (grid clusters, [`Welded::coarsened`]) and every vertex takes its cluster's
+    /// weights: generated meshes of a million vertices skin in the time of this many.
+    /// 0: always at full resolution.
+    pub max_vertices: usize,
 }
+
+/// Above every rig of `../shared/rigs` and `rigs_xdev` (their figures are at full
+/// resolution), and where the learned model's time still fits the service's budget.
+pub const DEFAULT_MAX_SKIN_VERTICES: usize = 40_000;
 
 impl Default for SkinConfig {
     fn default() -> Self {
@@ -85,6 +94,7 @@ impl Default for SkinConfig {
             min_weight: 0.05,
             max_bones: crate::mesh::scene::MAX_JOINTS as usize,
             outside_margin: crate::rig::placement::OUTSIDE_MARGIN,
+            max_vertices: DEFAULT_MAX_SKIN_VERTICES,
         }
     }
 }
@@ -99,7 +109,8 @@ impl SkinConfig {
             && self.softness >= 0.0
             && (0.0..0.5).contains(&self.min_weight)
             && self.outside_margin.is_finite()
-            && self.outside_margin >= 0.0;
+            && self.outside_margin >= 0.0
+            && (self.max_vertices == 0 || self.max_vertices >= 100);
         if ok {
             Ok(())
         } else {

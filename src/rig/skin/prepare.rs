@@ -114,7 +114,11 @@ impl Prepared {
     pub(super) fn checked(mesh: &Mesh, cfg: &SkinConfig) -> Prepared {
         // Welded in the file's frame, where copies of a vertex have equal bits.
         let mut welded = Welded::new(mesh);
+        // The mesh's own box, not the coarse copy's (cluster means sit a little inside).
         let bounds = welded.mesh.bounds();
+        if cfg.max_vertices > 0 {
+            welded = welded.coarsened(cfg.max_vertices);
+        }
         let norm = into_skin_frame(&mut welded.mesh);
         let voxels = Voxels::new(&welded.mesh, cfg);
         Prepared {
@@ -151,7 +155,7 @@ impl Prepared {
             Some(m) => super::learned::skin_learned_in(mesh, &self.voxels, &unit, cfg, m)?,
             None => super::geometric_in(mesh, &self.voxels, &unit, cfg)?,
         };
-        Ok((self.welded.spread(&w), times))
+        Ok((self.welded.spread(&w, cfg.max_influences), times))
     }
 
     /// [`Prepared::skin_timed`] without the timings.
