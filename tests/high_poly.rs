@@ -80,11 +80,10 @@ fn a_coarse_copy_skins_like_the_whole_mesh() {
 
 #[test]
 fn a_subdivided_mesh_rigs_into_a_valid_glb_on_the_coarse_path() {
-    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
-    if !root.join(".onnxruntime/libonnxruntime.so.1.31.1").is_file() {
-        eprintln!("SKIPPED: .onnxruntime/ is absent (scripts/setup.sh fetches it)");
+    if !common::ort_ready() {
         return;
     }
+    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
     let dense = figure().subdivided().subdivided();
     let tmp = tempfile::tempdir().unwrap();
     let input = tmp.path().join("dense.obj");
@@ -109,8 +108,5 @@ fn a_subdivided_mesh_rigs_into_a_valid_glb_on_the_coarse_path() {
     assert_eq!(back.mesh.positions.len(), dense.positions.len());
     let gt = rigserve::rig::groundtruth::extract(&back).unwrap().unwrap();
     assert!(gt.weights.per_vertex.iter().all(|w| !w.is_empty()));
-    if let Some(reports) = common::validate(&[out]) {
-        let bad = common::errors_of(&reports);
-        assert!(bad.is_empty(), "validator errors: {bad:#?}");
-    }
+    common::assert_valid(&[out]);
 }

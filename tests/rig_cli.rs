@@ -38,9 +38,7 @@ fn rig_template_names_the_bones_the_way_asked() {
     let Some(dir) = common::shared_rigs() else {
         return;
     };
-    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
-    if !root.join(".onnxruntime/libonnxruntime.so.1.31.1").is_file() {
-        eprintln!("SKIPPED: .onnxruntime/ is absent (scripts/setup.sh fetches it)");
+    if !common::ort_ready() {
         return;
     }
     let king = dir.join("modular_men__King.glb");

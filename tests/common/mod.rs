@@ -126,3 +126,23 @@ pub fn errors_of(reports: &[Value]) -> Vec<&Value> {
         .filter(|r| r["numErrors"].as_u64() != Some(0))
         .collect()
 }
+
+/// Every file passes the Khronos validator with no errors (nothing checked, with the
+/// validator's own message, when node or the validator is missing).
+pub fn assert_valid(files: &[PathBuf]) {
+    if let Some(reports) = validate(files) {
+        let bad = errors_of(&reports);
+        assert!(bad.is_empty(), "validator errors: {bad:#?}");
+    }
+}
+
+/// ONNX Runtime as `scripts/setup.sh` unpacks it; false (with a message) when absent, for
+/// tests that run the shipped models through the CLI.
+pub fn ort_ready() -> bool {
+    let lib =
+        PathBuf::from(env!("CARGO_MANIFEST_DIR")).join(".onnxruntime/libonnxruntime.so.1.31.1");
+    if !lib.is_file() {
+        eprintln!("SKIPPED: .onnxruntime/ is absent (scripts/setup.sh fetches it)");
+    }
+    lib.is_file()
+}
