@@ -1,5 +1,5 @@
 //! High-poly inputs skin on a coarse copy (`SkinConfig::max_vertices`, `rig
-//! --skin-max-vertices`) and every vertex takes its cluster's weights: the subdivided test
+//! --skin-max-vertices`) and every vertex blends its clusters' weights: the subdivided test
 //! figure, with the cap set below its size, rigs into a GLB the validator passes, every
 //! vertex weighted, and its weights close to those of the figure skinned whole.
 mod common;
@@ -11,12 +11,6 @@ use rigserve::mesh::{load, Limits, Mesh};
 use rigserve::rig::skin::{skin_with, SkinConfig};
 use rigserve::rig::SkinWeights;
 use std::process::Command;
-
-fn figure() -> Mesh {
-    load(&helpers::figure_obj(), &Limits::default())
-        .unwrap()
-        .mesh
-}
 
 fn write_obj(m: &Mesh) -> String {
     let mut s = String::new();
@@ -55,7 +49,7 @@ fn l1(a: &SkinWeights, b: &SkinWeights, bones: usize) -> f32 {
 
 #[test]
 fn a_coarse_copy_skins_like_the_whole_mesh() {
-    let dense = figure().subdivided().subdivided();
+    let dense = helpers::figure_mesh().subdivided().subdivided();
     let skeleton = rigserve::export::parse_bone_tree(&helpers::figure_skeleton()).unwrap();
     let whole = SkinConfig {
         max_vertices: 0,
@@ -84,7 +78,7 @@ fn a_subdivided_mesh_rigs_into_a_valid_glb_on_the_coarse_path() {
         return;
     }
     let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
-    let dense = figure().subdivided().subdivided();
+    let dense = helpers::figure_mesh().subdivided().subdivided();
     let tmp = tempfile::tempdir().unwrap();
     let input = tmp.path().join("dense.obj");
     std::fs::write(&input, write_obj(&dense)).unwrap();

@@ -11,12 +11,6 @@ use rigserve::mesh::{load, Format, Limits, Mesh};
 use std::path::Path;
 use std::process::Command;
 
-fn figure() -> Mesh {
-    load(&helpers::figure_obj(), &Limits::default())
-        .unwrap()
-        .mesh
-}
-
 fn colour(i: usize) -> [u8; 3] {
     [(i * 37 % 256) as u8, (i * 91 % 256) as u8, 200]
 }
@@ -122,7 +116,7 @@ fn surface(m: &Mesh) -> f32 {
 
 #[test]
 fn ply_and_stl_load_as_the_same_surface() {
-    let fig = figure();
+    let fig = helpers::figure_mesh();
     let cases: Vec<(&str, Vec<u8>, Format, bool)> = vec![
         ("ascii", ply(&fig, "ascii", false), Format::Ply, false),
         (
@@ -173,7 +167,7 @@ fn ply_and_stl_load_as_the_same_surface() {
 
 #[test]
 fn broken_ply_and_stl_are_typed_errors() {
-    let fig = figure();
+    let fig = helpers::figure_mesh();
     let good = ply(&fig, "binary_little_endian", false);
     let header_end = good.windows(11).position(|w| w == b"end_header\n").unwrap() + 11;
     // The last face of an ASCII PLY pointing past the vertices.
@@ -216,7 +210,7 @@ fn a_coloured_ply_and_an_stl_rig_into_valid_glbs() {
         return;
     }
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));
-    let fig = figure();
+    let fig = helpers::figure_mesh();
     let tmp = tempfile::tempdir().unwrap();
     let mut outs = Vec::new();
     for (name, bytes) in [

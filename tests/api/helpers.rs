@@ -145,6 +145,14 @@ pub async fn assert_error(r: Response, status: u16, error_type: &str) -> Value {
     body
 }
 
+/// [`figure_obj`] as loaded (for the test binaries that include these helpers by path).
+#[allow(dead_code)]
+pub fn figure_mesh() -> rigserve::mesh::Mesh {
+    rigserve::mesh::load(&figure_obj(), &rigserve::mesh::Limits::default())
+        .unwrap()
+        .mesh
+}
+
 /// A small standing figure as OBJ boxes: torso, head, two arms, two legs (about 200
 /// triangles), for tests that must not depend on the shared data set.
 pub fn figure_obj() -> Vec<u8> {
