@@ -10,7 +10,6 @@ mod helpers;
 use rigserve::mesh::{load, Limits, Mesh};
 use rigserve::rig::skin::{skin_with, SkinConfig};
 use rigserve::rig::SkinWeights;
-use std::process::Command;
 
 fn write_obj(m: &Mesh) -> String {
     let mut s = String::new();
@@ -77,26 +76,22 @@ fn a_subdivided_mesh_rigs_into_a_valid_glb_on_the_coarse_path() {
     if !common::ort_ready() {
         return;
     }
-    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
     let dense = helpers::figure_mesh().subdivided().subdivided();
     let tmp = tempfile::tempdir().unwrap();
     let input = tmp.path().join("dense.obj");
     std::fs::write(&input, write_obj(&dense)).unwrap();
     let out = tmp.path().join("dense.glb");
     let cap = (dense.positions.len() / 8).to_string();
-    let run = Command::new(env!("CARGO_BIN_EXE_rigserve"))
-        .current_dir(root)
-        .arg("rig")
-        .arg(&input)
-        .arg("--out")
-        .arg(&out)
-        .args(["--category", "humanoid", "--skin-max-vertices", &cap])
-        .output()
-        .unwrap();
-    assert!(
-        run.status.success(),
-        "{}",
-        String::from_utf8_lossy(&run.stderr)
+    common::rig(
+        &input,
+        &[
+            "--out",
+            out.to_str().unwrap(),
+            "--category",
+            "humanoid",
+            "--skin-max-vertices",
+            &cap,
+        ],
     );
     let back = load(&std::fs::read(&out).unwrap(), &Limits::default()).unwrap();
     assert_eq!(back.mesh.positions.len(), dense.positions.len());

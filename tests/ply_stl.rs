@@ -8,8 +8,6 @@ mod common;
 mod helpers;
 
 use rigserve::mesh::{load, Format, Limits, Mesh};
-use std::path::Path;
-use std::process::Command;
 
 fn colour(i: usize) -> [u8; 3] {
     [(i * 37 % 256) as u8, (i * 91 % 256) as u8, 200]
@@ -209,7 +207,6 @@ fn a_coloured_ply_and_an_stl_rig_into_valid_glbs() {
     if !common::ort_ready() {
         return;
     }
-    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
     let fig = helpers::figure_mesh();
     let tmp = tempfile::tempdir().unwrap();
     let mut outs = Vec::new();
@@ -220,19 +217,9 @@ fn a_coloured_ply_and_an_stl_rig_into_valid_glbs() {
         let input = tmp.path().join(name);
         std::fs::write(&input, bytes).unwrap();
         let out = tmp.path().join(format!("{name}.glb"));
-        let run = Command::new(env!("CARGO_BIN_EXE_rigserve"))
-            .current_dir(root)
-            .arg("rig")
-            .arg(&input)
-            .arg("--out")
-            .arg(&out)
-            .args(["--category", "humanoid"])
-            .output()
-            .unwrap();
-        assert!(
-            run.status.success(),
-            "{name}: {}",
-            String::from_utf8_lossy(&run.stderr)
+        common::rig(
+            &input,
+            &["--out", out.to_str().unwrap(), "--category", "humanoid"],
         );
         let back = load(&std::fs::read(&out).unwrap(), &Limits::default()).unwrap();
         assert_eq!(back.mesh.positions.len(), fig.positions.len(), "{name}");

@@ -8,20 +8,9 @@ use std::process::Command;
 fn bone_names(mesh: &Path, extra: &[&str]) -> Vec<String> {
     let tmp = tempfile::tempdir().unwrap();
     let out = tmp.path().join("bones.json");
-    let run = Command::new(env!("CARGO_BIN_EXE_rigserve"))
-        .current_dir(env!("CARGO_MANIFEST_DIR"))
-        .arg("rig")
-        .arg(mesh)
-        .args(["--skeleton-only", "--bones"])
-        .arg(&out)
-        .args(extra)
-        .output()
-        .unwrap();
-    assert!(
-        run.status.success(),
-        "{}",
-        String::from_utf8_lossy(&run.stderr)
-    );
+    let mut args = vec!["--skeleton-only", "--bones", out.to_str().unwrap()];
+    args.extend(extra);
+    common::rig(mesh, &args);
     let tree: serde_json::Value = serde_json::from_slice(&std::fs::read(&out).unwrap()).unwrap();
     tree["bones"]
         .as_array()

@@ -281,7 +281,10 @@ mod tests {
         .unwrap();
         assert_eq!((o.seed, o.samples), (7, 2));
         assert_eq!(o.template, TemplateChoice::Mixamo);
-        assert_eq!(o.up, crate::jobs::UpChoice::NegZ);
+        assert_eq!(
+            o.up,
+            crate::predict::orient::Up::Axis(crate::predict::orient::Axis::NegZ)
+        );
         assert_eq!(o.category.as_deref(), Some("bird_flyer"));
         for q in [
             "seed=-1",

@@ -10,7 +10,7 @@ use rigserve::infer::{
 use rigserve::mesh;
 use rigserve::predict::library::Library;
 use rigserve::predict::refine::Refine;
-use rigserve::predict::{predict_skeleton, Origin, PredictConfig, TemplateMode};
+use rigserve::predict::{predict_skeleton, Origin, PredictConfig};
 use rigserve::rig::groundtruth::extract;
 use rigserve::rig::skin::{skin_with_timed, CandidateScorer, SkinConfig};
 use rigserve::rig::Skeleton;
@@ -157,15 +157,8 @@ pub struct DecodeArgs {
     /// auto: the model decides (and a close library rig is borrowed); mixamo: decode the
     /// Mixamo body template; none: decode freely, without the template or the library.
     /// The API's `template`.
-    #[arg(long, value_enum, default_value_t = Template::Auto)]
-    pub template: Template,
-}
-
-#[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Template {
-    Auto,
-    Mixamo,
-    None,
+    #[arg(long, default_value = "auto")]
+    pub template: rigserve::jobs::TemplateChoice,
 }
 
 impl DecodeArgs {
@@ -190,11 +183,7 @@ impl DecodeArgs {
                 window: self.refine_model,
             }),
             up: self.up,
-            template: match self.template {
-                Template::Auto => TemplateMode::Auto,
-                Template::Mixamo => TemplateMode::Force,
-                Template::None => TemplateMode::Forbid,
-            },
+            template: self.template.into(),
             ..PredictConfig::default()
         }
     }

@@ -25,7 +25,7 @@ pub use events::Notifier;
 pub use metrics::JobMetrics;
 pub use model::{
     new_job_id, Job, JobError, JobEvent, JobOptions, JobResult, JobStatus, NewJob, Stage,
-    TemplateChoice, UpChoice,
+    TemplateChoice,
 };
 pub use store::{Admission, Idempotency, JobStore, Lease, Outcome, StoreError};
 pub use view::JobView;

@@ -105,24 +105,24 @@ pub enum TemplateChoice {
     None,
 }
 
-/// `up`: the mesh's up axis (glTF's Y by default), or `auto` to find it.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
-pub enum UpChoice {
-    #[serde(rename = "auto")]
-    Auto,
-    #[default]
-    #[serde(rename = "y", alias = "+y")]
-    PosY,
-    #[serde(rename = "-y")]
-    NegY,
-    #[serde(rename = "x", alias = "+x")]
-    PosX,
-    #[serde(rename = "-x")]
-    NegX,
-    #[serde(rename = "z", alias = "+z")]
-    PosZ,
-    #[serde(rename = "-z")]
-    NegZ,
+impl From<TemplateChoice> for crate::predict::TemplateMode {
+    fn from(t: TemplateChoice) -> Self {
+        use crate::predict::TemplateMode;
+        match t {
+            TemplateChoice::Auto => TemplateMode::Auto,
+            TemplateChoice::Mixamo => TemplateMode::Force,
+            TemplateChoice::None => TemplateMode::Forbid,
+        }
+    }
+}
+
+impl std::str::FromStr for TemplateChoice {
+    type Err = String;
+    /// The API's words (`auto`, `mixamo`, `none`), for the CLI's `--template`.
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        serde_json::from_value(serde_json::Value::String(s.to_string()))
+            .map_err(|_| format!("template must be auto, mixamo or none, not {s:?}"))
+    }
 }
 
 /// What the client asked for. Defaults suit an unknown mesh.
@@ -131,7 +131,8 @@ pub enum UpChoice {
 pub struct JobOptions {
     pub category: Option<String>,
     pub template: TemplateChoice,
-    pub up: UpChoice,
+    /// The mesh's up axis ([`crate::predict::orient::Up`]).
+    pub up: crate::predict::orient::Up,
     pub seed: u64,
     /// Skeleton candidates decoded (best-of-N).
     pub samples: usize,
@@ -152,7 +153,7 @@ impl Default for JobOptions {
         JobOptions {
             category: None,
             template: TemplateChoice::Auto,
-            up: UpChoice::PosY,
+            up: crate::predict::orient::Up::default(),
             seed: 0,
             samples: 4,
             max_bones: 128,

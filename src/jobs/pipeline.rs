@@ -3,14 +3,14 @@
 //! blocking pool, while the skeleton decode itself runs on the shared inference thread,
 //! batched with the other jobs' candidates.
 
-use super::model::{JobOptions, Stage, TemplateChoice, UpChoice};
+use super::model::{JobOptions, Stage};
 use super::slots::CpuSlots;
 use crate::export::{bone_tree, export_glb, parse_bone_tree, ExportOptions};
 use crate::infer::Backend;
 use crate::infer::SkinModel;
 use crate::mesh::{self, Limits};
 use crate::predict::library::Library;
-use crate::predict::{predict_skeleton, PredictConfig, TemplateMode};
+use crate::predict::{predict_from_samples, samples_for, PredictConfig};
 use crate::rig::groundtruth;
 use crate::rig::skin::{prepare, CandidateScorer, SkinConfig};
 use crate::rig::Skeleton;
@@ -192,9 +192,10 @@ fn skeleton_for(
         })?;
         p.stage(Stage::Encoding);
         let cfg = predict_config(engine, options, progress.clone());
+        let samples = samples_for(&asset.mesh, &cfg).map_err(|e| StageError::new(e.code(), e))?;
         check(p)?;
         p.stage(Stage::Skeleton);
-        predict_skeleton(backend, &asset.mesh, &cfg, given.as_ref())
+        predict_from_samples(backend, &samples, &cfg, given.as_ref())
             .map_err(|e| StageError::new(e.code(), e))?
             .skeleton
     };
@@ -211,25 +212,10 @@ fn predict_config(
         seed: options.seed,
         max_bones: options.max_bones.clamp(1, engine.max_bones.max(1)),
         category: options.category.clone(),
-        template: match options.template {
-            TemplateChoice::Auto => TemplateMode::Auto,
-            TemplateChoice::Mixamo => TemplateMode::Force,
-            TemplateChoice::None => TemplateMode::Forbid,
-        },
+        template: options.template.into(),
         canceled: Some(Arc::new(move || progress.canceled())),
         library: engine.library.clone(),
-        up: {
-            use crate::predict::orient::{Axis, Up};
-            match options.up {
-                UpChoice::Auto => Up::Auto,
-                UpChoice::PosY => Up::Axis(Axis::PosY),
-                UpChoice::NegY => Up::Axis(Axis::NegY),
-                UpChoice::PosX => Up::Axis(Axis::PosX),
-                UpChoice::NegX => Up::Axis(Axis::NegX),
-                UpChoice::PosZ => Up::Axis(Axis::PosZ),
-                UpChoice::NegZ => Up::Axis(Axis::NegZ),
-            }
-        },
+        up: options.up,
         ..PredictConfig::default()
     };
     cfg.sampling.seed = options.seed;

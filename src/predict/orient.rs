@@ -7,7 +7,7 @@
 //! inverse is exact in floating point, so bones a caller asked to keep come back bit for
 //! bit, and no rotation error is added to the figures.
 
-use super::library::{draws_of_samples, BoxFrame, Library};
+use super::library::{BoxFrame, Library, SHAPE_POINTS};
 use glam::Vec3;
 
 /// A signed permutation of the axes: `out[i] = sign[i] * p[axis[i]]`.
@@ -134,10 +134,12 @@ const AXES: [Axis; 6] = [
     Axis::NegY,
 ];
 
-/// `up` of a request: found from the mesh, or given.
-/// The default is Y-up, glTF's convention: the search (`Auto`) still turns some upright
-/// meshes the wrong way (dev, see `models/MODEL_CARD.md`), so it is asked for, not assumed.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+/// `up` of a request (CLI `--up`, API `up`; the same words both ways): found from the
+/// mesh, or given. The default is Y-up, glTF's convention: the search (`Auto`) still turns
+/// some upright meshes the wrong way (dev, see `models/MODEL_CARD.md`), so it is asked
+/// for, not assumed.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(try_from = "String", into = "String")]
 pub enum Up {
     Auto,
     Axis(Axis),
@@ -166,6 +168,28 @@ impl std::str::FromStr for Up {
     }
 }
 
+impl TryFrom<String> for Up {
+    type Error = String;
+    fn try_from(s: String) -> Result<Self, Self::Error> {
+        s.parse()
+    }
+}
+
+impl From<Up> for String {
+    fn from(up: Up) -> String {
+        match up {
+            Up::Auto => "auto",
+            Up::Axis(Axis::PosY) => "y",
+            Up::Axis(Axis::NegY) => "-y",
+            Up::Axis(Axis::PosX) => "x",
+            Up::Axis(Axis::NegX) => "-x",
+            Up::Axis(Axis::PosZ) => "z",
+            Up::Axis(Axis::NegZ) => "-z",
+        }
+        .to_string()
+    }
+}
+
 /// How much nearer (box-coordinate shape distance) a turned mesh must come to a library
 /// rig than the mesh as given before it is turned: ties and near ties stay as given.
 pub const TURN_MARGIN: f32 = 0.02;
@@ -189,19 +213,17 @@ pub fn find_up(
     let mut distances = Vec::with_capacity(AXES.len());
     for &up in &AXES {
         let turn = Turn::bringing_up(up);
-        let turned: Vec<[f32; 6]> = rows
-            .iter()
-            .map(|r| {
-                let p = turn.apply(Vec3::new(r[0], r[1], r[2]));
-                let n = turn.apply(Vec3::new(r[3], r[4], r[5]));
-                [p.x, p.y, p.z, n.x, n.y, n.z]
-            })
-            .collect();
         let (a, b) = (turn.apply(bounds.0), turn.apply(bounds.1));
         let frame = BoxFrame::from_bounds(a.min(b), a.max(b));
-        let draws = draws_of_samples(&turned, &frame);
+        // The first shape's worth of samples, turned, in box coordinates: what `ranked`
+        // compares with a library rig (`shape_of_samples` of the turned rows).
+        let shape: Vec<Vec3> = rows
+            .iter()
+            .take(SHAPE_POINTS)
+            .map(|r| frame.apply(turn.apply(Vec3::new(r[0], r[1], r[2]))))
+            .collect();
         let nearest = lib
-            .ranked(&draws[0], frame.proportions(), category)
+            .ranked(&shape, frame.proportions(), category)
             .first()
             .map_or(f32::INFINITY, |&(_, d)| d);
         distances.push((up, nearest));
@@ -274,5 +296,8 @@ mod tests {
         assert_eq!("+y".parse::<Up>(), Ok(Up::Axis(Axis::PosY)));
         assert_eq!("-x".parse::<Up>(), Ok(Up::Axis(Axis::NegX)));
         assert!("w".parse::<Up>().is_err());
+        for s in ["auto", "y", "-y", "x", "-x", "z", "-z"] {
+            assert_eq!(String::from(s.parse::<Up>().unwrap()), s);
+        }
     }
 }

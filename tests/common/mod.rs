@@ -146,3 +146,21 @@ pub fn ort_ready() -> bool {
     }
     lib.is_file()
 }
+
+/// Runs `rigserve rig INPUT ARGS` from the repository root (so with the shipped models)
+/// and fails the test with its standard error when it fails.
+pub fn rig(input: &Path, args: &[&str]) {
+    let run = Command::new(env!("CARGO_BIN_EXE_rigserve"))
+        .current_dir(env!("CARGO_MANIFEST_DIR"))
+        .arg("rig")
+        .arg(input)
+        .args(args)
+        .output()
+        .expect("run rigserve rig");
+    assert!(
+        run.status.success(),
+        "rigserve rig {}: {}",
+        input.display(),
+        String::from_utf8_lossy(&run.stderr)
+    );
+}
