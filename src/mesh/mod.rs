@@ -203,6 +203,11 @@ fn corners_area([a, b, c]: [Vec3; 3]) -> f32 {
     (b - a).cross(c - a).length() * 0.5
 }
 
+/// The key of a position for welding: its bits, with -0.0 and 0.0 the same place.
+pub fn position_key(p: Vec3) -> [u32; 3] {
+    (p + Vec3::ZERO).to_array().map(f32::to_bits)
+}
+
 impl Mesh {
     /// Every triangle split into four at its edge midpoints (shared between neighbours,
     /// so the surface stays closed where it was): the same shape, denser, for measuring

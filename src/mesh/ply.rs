@@ -281,14 +281,18 @@ fn read_vertices(
         colors.reserve(el.count as usize);
     }
     let mut values = vec![0f64; el.props.len()];
-    let mut scale = vec![1f64; el.props.len()];
+    let scale: Vec<f64> = el
+        .props
+        .iter()
+        .map(|p| match p {
+            Prop::Scalar(_, ty) => ty.full(),
+            Prop::List(..) => 1.0,
+        })
+        .collect();
     for _ in 0..el.count {
         for (k, p) in el.props.iter().enumerate() {
             match p {
-                Prop::Scalar(_, ty) => {
-                    values[k] = body.read(*ty)?;
-                    scale[k] = ty.full();
-                }
+                Prop::Scalar(_, ty) => values[k] = body.read(*ty)?,
                 Prop::List(_, c, i) => {
                     let n = body.read(*c)?;
                     for _ in 0..list_len(n)? {

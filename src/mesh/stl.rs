@@ -99,8 +99,7 @@ impl Weld {
         if !p.is_finite() {
             return Err(MeshError::NonFinite);
         }
-        // + 0.0 makes -0.0 and 0.0 one key.
-        let key = (p + Vec3::ZERO).to_array().map(f32::to_bits);
+        let key = super::position_key(p);
         if let Some(&i) = self.index.get(&key) {
             return Ok(i);
         }

@@ -14,10 +14,7 @@ use crate::rig::SkinWeights;
 use glam::Vec3;
 use std::collections::HashMap;
 
-/// The key of a position: its bits, with -0.0 and 0.0 the same place.
-pub fn key(p: Vec3) -> [u32; 3] {
-    (p + Vec3::ZERO).to_array().map(f32::to_bits)
-}
+pub use crate::mesh::position_key as key;
 
 /// A mesh with one vertex per distinct position, and where each original vertex went.
 pub struct Welded {
